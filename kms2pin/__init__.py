@@ -1,0 +1,32 @@
+"""kms2pin: the 1999 kinematic model compiler (Sudderth) on Pinocchio.
+
+Pipeline: language (:mod:`kms2pin.lang`) -> model (:mod:`kms2pin.model`) ->
+URDF/SRDF (:mod:`kms2pin.urdf`) -> Pinocchio robot (:mod:`kms2pin.robot`).
+"""
+
+from __future__ import annotations
+
+from .errors import Kms2pinError, RobotError, SpecError, TargetError
+from .lang import parse, parse_text
+from .model import Body, BoundVector, Joint, ModelSpec, System
+from .robot import Robot, euler_parameters, load
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Body",
+    "BoundVector",
+    "Joint",
+    "Kms2pinError",
+    "ModelSpec",
+    "Robot",
+    "RobotError",
+    "SpecError",
+    "System",
+    "TargetError",
+    "__version__",
+    "euler_parameters",
+    "load",
+    "parse",
+    "parse_text",
+]

@@ -1,0 +1,65 @@
+"""``kms2pin`` command line: one sub-command per module in :mod:`kms2pin.commands`.
+
+Exit status: 0 success, 1 a model/data error (reported compiler-style on stderr),
+2 a usage error (bad arguments, missing input file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from . import __version__, commands
+from .errors import Kms2pinError
+
+EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
+
+
+class UsageError(Exception):
+    """A command was called wrongly (exit status 2)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="kms2pin",
+        description="Compile kinematic model specs (.kms) to URDF/Pinocchio; static update; ECM tracking.",
+    )
+    parser.add_argument("--version", action="version", version=f"kms2pin {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except UsageError as err:
+        print(f"kms2pin {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except FileNotFoundError as err:
+        print(f"kms2pin {args.command}: error: {err.filename or err}: no such file", file=sys.stderr)
+        return EXIT_USAGE
+    except IsADirectoryError as err:
+        print(f"kms2pin {args.command}: error: {err.filename}: is a directory", file=sys.stderr)
+        return EXIT_USAGE
+    except Kms2pinError as err:
+        print(str(err), file=sys.stderr)
+        return EXIT_MODEL
+    except KeyboardInterrupt:
+        print(f"kms2pin {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Sub-commands of the ``kms2pin`` CLI; each module defines NAME, HELP, add_arguments, run."""

@@ -1,0 +1,42 @@
+"""Write <system>.urdf, <system>.srdf and the mesh they use for every system of a spec."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from ..errors import ExportError
+from ..mesh import MESH_NAME, sphere_obj
+from ..robot import Robot
+from ..urdf import MESH_DIR
+from ._common import add_spec_argument, read_model, write_files_atomically
+
+NAME = "export"
+HELP = "compile a spec to URDF + SRDF (default output folder urdf_out/)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_spec_argument(p)
+    p.add_argument("-o", "--output", default="urdf_out", metavar="DIR", help="output folder (default: urdf_out)")
+    p.add_argument("--root", choices=("spec", "free"), default="spec",
+                   help="'free': replace the joint to the inertial frame by a floating base (no world link)")
+    p.add_argument("--system", help="export only this rigidBodySystem")
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = read_model(args.spec)
+    systems = [spec.system(args.system)] if args.system else list(spec.systems)
+    out = Path(args.output)
+    files: dict[Path, str] = {out / MESH_DIR / MESH_NAME: sphere_obj()}
+    for system in systems:
+        robot = Robot(spec, system, args.root)  # loading in Pinocchio validates the URDF
+        files[out / f"{system.name}.urdf"] = robot.urdf
+        files[out / f"{system.name}.srdf"] = robot.srdf
+    try:
+        write_files_atomically(files)
+    except OSError as err:
+        raise ExportError(f"cannot write to {out}: {err.strerror or err}") from None
+    for path in files:
+        print(os.fspath(path))
+    return 0

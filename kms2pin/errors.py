@@ -1,0 +1,81 @@
+"""One error root for the package, with one subclass per pipeline layer.
+
+Every error a user can cause by their input derives from :class:`Kms2pinError`.
+Spec errors carry a list of located :class:`Diagnostic` records so that the
+command line can report every mistake of a file in one run, compiler-style::
+
+    fullbody.kms:41:22: error: body 'leftThigh' has no bound vector 'kne' (did you mean 'knee'?)
+        constraint revolute(leftThigh.kne, leftShin.knee, 20);
+                                      ^
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+
+class Kms2pinError(Exception):
+    """Root of every error kms2pin raises for a user's mistake."""
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """One located message about a spec file (1-based line and column)."""
+
+    path: str
+    line: int
+    column: int
+    message: str
+    source_line: str = ""
+    severity: str = "error"
+
+    def format(self) -> str:
+        head = f"{self.path}:{self.line}:{self.column}: {self.severity}: {self.message}"
+        if not self.source_line:
+            return head
+        text = self.source_line.rstrip("\n").expandtabs(4)
+        caret = " " * (max(self.column, 1) - 1) + "^"
+        return f"{head}\n    {text}\n    {caret}"
+
+
+class SpecError(Kms2pinError):
+    """A model spec (``.kms``) is malformed: syntax, names, types or kinematics."""
+
+    def __init__(self, diagnostics: Sequence[Diagnostic]):
+        self.diagnostics = tuple(diagnostics)
+        super().__init__(self.format())
+
+    def format(self) -> str:
+        return "\n".join(d.format() for d in self.diagnostics)
+
+    @property
+    def first(self) -> Diagnostic:
+        return self.diagnostics[0]
+
+
+class ExportError(Kms2pinError):
+    """Writing URDF/SRDF/meshes failed (e.g. the output directory is not writable)."""
+
+
+class RobotError(Kms2pinError):
+    """A request to a loaded robot names something it does not have."""
+
+
+class TargetError(Kms2pinError, ValueError):
+    """Static-update targets are malformed (NaN, not unit quaternions, wrong shape)."""
+
+
+class CameraError(Kms2pinError):
+    """A camera description is invalid (file, field and reason in the message)."""
+
+
+class InputDataError(Kms2pinError):
+    """Images, masks or videos cannot be used (file and frame in the message)."""
+
+
+def did_you_mean(name: str, candidates: Iterable[str]) -> str:
+    """Return `` (did you mean 'x'?)`` for the closest candidate, or ``""``."""
+    close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""

@@ -1,0 +1,232 @@
+"""A compiled system loaded into Pinocchio: body poses, maximal coordinates, Jacobians.
+
+``q`` is always Pinocchio's configuration vector (``model.nq``) in the order of
+``Robot.joint_names``; with ``root="free"`` its first 7 entries are the root
+free flyer (position, then quaternion x, y, z, w).  Body poses are
+``world_T_body``: the ellipsoid centre with the body's axes (thesis eq. 2.1).
+"""
+
+from __future__ import annotations
+
+import os
+from functools import cached_property
+from importlib import resources
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import RobotError, did_you_mean
+from .lang import looks_like_path, parse, parse_text, read_spec
+from .model import ModelSpec, System, alignment_matrix, axis_angle_matrix
+from .urdf import to_srdf, to_urdf
+
+ROOTS = ("spec", "free")
+
+
+def mesh_package_dir() -> str:
+    """Folder holding ``meshes/unit_sphere.obj`` for Pinocchio's ``package_dirs``."""
+    return str(resources.files("kms2pin") / "data")
+
+
+class Robot:
+    """One rigid-body system of a spec, compiled to URDF and loaded in Pinocchio.
+
+    Attributes:
+        model, data: Pinocchio model and data.  Each body has a BODY frame (its link,
+            at the joint to its parent) and an OP_FRAME ``"<body>_centre"`` at the
+            ellipsoid centre with the body axes.
+        urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
+        bodies: body names in traversal (preorder) order.
+        joint_names: Pinocchio joint names in ``q`` order.
+        q_rest: the spec's rest configuration (default joint angles).
+    """
+
+    def __init__(self, spec: ModelSpec, system: System, root: str = "spec"):
+        if root not in ROOTS:
+            raise RobotError(f"root must be one of {ROOTS}, not {root!r}")
+        self.spec = spec
+        self.system = system
+        self.root = root
+        free = root == "free"
+        source = os.path.basename(spec.path)
+        self.urdf = to_urdf(system, source, free_root=free)
+        self.srdf = to_srdf(system, source, free_root=free)
+        if free:
+            self.model = pin.buildModelFromXML(self.urdf, pin.JointModelFreeFlyer())
+        else:
+            self.model = pin.buildModelFromXML(self.urdf)
+        self.bodies = tuple(b.name for b in system.bodies)
+        self._index = {n: i for i, n in enumerate(self.bodies)}
+        self.frame_ids = tuple(self._add_centre_frame(b) for b in self.bodies)
+        self.data = self.model.createData()
+        self.joint_names = tuple(self.model.names[1:])
+        pin.loadReferenceConfigurationsFromXML(self.model, self.srdf, False)
+        self.q_rest = self._rest_configuration()
+
+    def _add_centre_frame(self, body: str) -> int:
+        link = self.model.getFrameId(body, pin.FrameType.BODY)
+        frame = self.model.frames[link]
+        centre = -np.asarray(self.system.joint_of(body).child_bvec.pos)
+        placement = frame.placement * pin.SE3(np.eye(3), centre)
+        return self.model.addFrame(
+            pin.Frame(f"{body}_centre", frame.parentJoint, link, placement, pin.FrameType.OP_FRAME)
+        )
+
+    def _rest_configuration(self) -> np.ndarray:
+        q = np.array(self.model.referenceConfigurations["rest"], dtype=float)
+        if self.root == "free":
+            j = self.system.joints[0]
+            R = axis_angle_matrix(np.asarray(j.parent_bvec.orient), np.radians(j.default_angle))
+            R = R @ alignment_matrix(np.asarray(j.parent_bvec.orient), np.asarray(j.child_bvec.orient))
+            q[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.asarray(j.parent_bvec.pos)))
+        return q
+
+    # ------------------------------------------------------------------ shapes
+    def _body(self, name: str):
+        if name not in self._index:
+            raise RobotError(f"'{self.system.name}' has no body '{name}'{did_you_mean(name, self.bodies)}")
+        return self.system.bodies[self._index[name]]
+
+    def index(self, name: str) -> int:
+        """Position of body ``name`` in :attr:`bodies`."""
+        self._body(name)
+        return self._index[name]
+
+    def inner(self, name: str) -> np.ndarray:
+        """Inner-ellipsoid semi-axes (x, y, z) of body ``name``."""
+        return np.array(self._body(name).inner)
+
+    def outer(self, name: str) -> np.ndarray:
+        """Outer-ellipsoid semi-axes (x, y, z) of body ``name``."""
+        return np.array(self._body(name).outer)
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    @property
+    def nv(self) -> int:
+        return self.model.nv
+
+    # ------------------------------------------------------------------ kinematics
+    def _check_q(self, q) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.model.nq,):
+            raise RobotError(f"q must have shape ({self.model.nq},) for '{self.system.name}', not {q.shape}")
+        return q
+
+    def forward(self, q) -> None:
+        """Forward kinematics of every frame into :attr:`data` (no Jacobians)."""
+        pin.framesForwardKinematics(self.model, self.data, self._check_q(q))
+
+    def body_pose(self, q, name: str) -> pin.SE3:
+        """world_T_body of ``name``: ellipsoid centre and body axes (eq. 2.1, 2.14)."""
+        i = self.index(name)
+        self.forward(q)
+        return pin.SE3(self.data.oMf[self.frame_ids[i]])
+
+    def body_poses(self, q) -> list[pin.SE3]:
+        """world_T_body of every body, in :attr:`bodies` order."""
+        self.forward(q)
+        return [pin.SE3(self.data.oMf[f]) for f in self.frame_ids]
+
+    def maximal_coordinates(self, q, convention: str = "positive") -> np.ndarray:
+        """The thesis's q_i = [mu, theta0, theta1, theta2, theta3] per body (eq. 2.8), (n, 7).
+
+        Euler parameters are scalar first and satisfy eq. 2.7.  They are unique only
+        up to sign; ``convention="positive"`` takes theta0 >= 0 (continuous except at
+        half turns), ``"thesis"`` takes the thesis's rule (§2.2.1): the first nonzero
+        of theta1, theta2, theta3 positive.
+        """
+        self.forward(q)
+        out = np.empty((len(self.bodies), 7))
+        for i, f in enumerate(self.frame_ids):
+            M = self.data.oMf[f]
+            out[i, :3] = M.translation
+            out[i, 3:] = euler_parameters(M.rotation, convention)
+        return out
+
+    def body_jacobian(self, q, name: str) -> np.ndarray:
+        """6 x nv Jacobian of body ``name`` at its ellipsoid centre, world-aligned axes,
+        rows (linear; angular) as in Pinocchio's LOCAL_WORLD_ALIGNED."""
+        i = self.index(name)
+        q = self._check_q(q)
+        return pin.computeFrameJacobian(
+            self.model, self.data, q, self.frame_ids[i], pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        )
+
+    def random_configuration(self, rng: np.random.Generator, spread_deg: float = 180.0) -> np.ndarray:
+        """Rest pose with every revolute angle moved uniformly within +-spread_deg."""
+        q = self.q_rest.copy()
+        start = 7 if self.root == "free" else 0
+        q[start:] += np.radians(rng.uniform(-spread_deg, spread_deg, self.model.nq - start))
+        return q
+
+    # ------------------------------------------------------------------ geometry
+    @cached_property
+    def visual_model(self) -> pin.GeometryModel:
+        """Pinocchio visuals from the URDF (inner opaque, outer translucent)."""
+        return pin.buildGeomFromUrdfString(
+            self.model, self.urdf, pin.GeometryType.VISUAL, package_dirs=[mesh_package_dir()]
+        )
+
+    @cached_property
+    def collision_model(self) -> pin.GeometryModel:
+        """Inner ellipsoids as collision meshes, adjacent pairs excluded (from the SRDF)."""
+        geom = pin.buildGeomFromUrdfString(
+            self.model, self.urdf, pin.GeometryType.COLLISION, package_dirs=[mesh_package_dir()]
+        )
+        geom.addAllCollisionPairs()
+        pin.removeCollisionPairsFromXML(self.model, geom, self.srdf, False)
+        return geom
+
+    @property
+    def height(self) -> float:
+        """Vertical (world y) extent of the inner ellipsoids at rest, in spec units."""
+        lo, hi = np.inf, -np.inf
+        for name, M in zip(self.bodies, self.body_poses(self.q_rest)):
+            r = np.abs(M.rotation) @ self.inner(name)  # half extents of the bounding box
+            lo = min(lo, M.translation[1] - r[1])
+            hi = max(hi, M.translation[1] + r[1])
+        return float(hi - lo)
+
+    def __repr__(self) -> str:
+        return f"Robot('{self.system.name}', bodies={len(self.bodies)}, nq={self.nq}, root={self.root!r})"
+
+
+def euler_parameters(R: np.ndarray, convention: str = "positive") -> np.ndarray:
+    """Unit Euler parameters [theta0, theta1, theta2, theta3] of rotation R (eq. 2.7)."""
+    quat = pin.Quaternion(np.asarray(R))
+    e = np.array([quat.w, quat.x, quat.y, quat.z])
+    e /= np.linalg.norm(e)
+    if convention == "positive":
+        if e[0] < 0:
+            e = -e
+    elif convention == "thesis":
+        nz = np.flatnonzero(np.abs(e[1:]) > 1e-15)
+        if len(nz) and e[1 + nz[0]] < 0:
+            e = -e
+        elif not len(nz) and e[0] < 0:
+            e = -e
+    else:
+        raise RobotError(f"convention must be 'positive' or 'thesis', not {convention!r}")
+    return e
+
+
+def load(spec: str | os.PathLike | ModelSpec, root: str = "spec", system: str | None = None) -> Robot:
+    """Compile a spec (path, text or parsed ModelSpec) and load one system in Pinocchio.
+
+    Args:
+        spec: a ``.kms`` path, spec text, or the result of :func:`kms2pin.parse`.
+        root: ``"spec"`` keeps the spec's joint to the inertial frame; ``"free"``
+            replaces it by a 6-DoF free flyer.
+        system: which rigidBodySystem, when the spec has more than one.
+    """
+    if isinstance(spec, ModelSpec):
+        model_spec = spec
+    elif looks_like_path(spec):
+        text, shown = read_spec(spec)
+        model_spec = parse_text(text, shown)
+    else:
+        model_spec = parse(spec)
+    return Robot(model_spec, model_spec.system(system), root)
