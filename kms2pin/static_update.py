@@ -1,0 +1,356 @@
+"""The static update (thesis §2.3): virtual-work equilibrium on Pinocchio Jacobians.
+
+After an M-step each body has a kinematically valid *primary* pose q_i (from the
+joint configuration q) and an *intermediate* pose q'_i (the target).  Springs on
+each of the 7 maximal coordinates pull with F_i[j] = k_ij (q'_i[j] - q_i[j])
+(eq. 2.33); the update returns the valid configuration where B^T Q = 0 (eq. 2.28),
+B = d q_max / d q being the map from joint velocities to maximal-coordinate rates
+(the role of B_di, eq. 2.27/2.32, with Pinocchio's joint coordinates as the
+independent coordinates).  B^T Q is minus the gradient of the spring energy
+E = 1/2 sum k_ij (q'_i[j] - q_i[j])^2 over valid configurations, so the
+equilibrium is found by a Levenberg-Marquardt descent of E.
+
+Sign consistency.  Euler parameters are unique only up to sign (§2.2.1).  Each
+target's Euler parameters are negated whenever their dot product with the
+*current* primary body's is negative, at every evaluation; a target equal to the
+primary pose therefore exerts no force whichever sign it was given with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import TargetError, did_you_mean
+from .robot import Robot
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@dataclass(frozen=True)
+class StaticUpdateResult:
+    """Outcome of :func:`static_update`.
+
+    Attributes:
+        q: equilibrium configuration (Pinocchio ``q``).
+        converged: whether ||B^T Q|| fell below ``tol``.
+        iterations: Levenberg-Marquardt iterations taken.
+        residual: ||B^T Q|| at ``q`` (eq. 2.28; generalized force, spring units).
+        energy: spring energy 1/2 sum k (q' - q)^2 at ``q``.
+        forces: (n_bodies, 7) spring forces F_i (eq. 2.33) at ``q``, body order.
+        message: why the iteration stopped.
+    """
+
+    q: np.ndarray
+    converged: bool
+    iterations: int
+    residual: float
+    energy: float
+    forces: np.ndarray
+    message: str = ""
+
+
+def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
+    """Targets as an (n, 7) array [mu, theta0..3] and an (n,) mask of bodies with springs.
+
+    Accepts an (n, 7) array in ``robot.bodies`` order or a mapping body name ->
+    ``pin.SE3`` (or a 7-vector); bodies left out of a mapping get no spring.
+    Raises TargetError (a ValueError) naming the body for NaN or non-unit targets.
+    """
+    n = len(robot.bodies)
+    if isinstance(targets, Mapping):
+        out = np.zeros((n, 7))
+        out[:, 3] = 1.0
+        mask = np.zeros(n, dtype=bool)
+        for name, pose in targets.items():
+            if name not in robot.bodies:
+                raise TargetError(
+                    f"target for unknown body '{name}'{did_you_mean(str(name), robot.bodies)}; "
+                    f"'{robot.system.name}' has: {', '.join(robot.bodies)}"
+                )
+            i = robot.index(name)
+            if isinstance(pose, pin.SE3):
+                quat = pin.Quaternion(pose.rotation)
+                out[i] = [*pose.translation, quat.w, quat.x, quat.y, quat.z]
+            else:
+                row = np.asarray(pose, dtype=float)
+                if row.shape != (7,):
+                    raise TargetError(f"target of body '{name}' must be a pin.SE3 or 7 numbers, not shape {row.shape}")
+                out[i] = row
+            mask[i] = True
+    else:
+        out = np.array(targets, dtype=float)
+        if out.shape != (n, 7):
+            raise TargetError(
+                f"targets must be an ({n}, 7) array of [mu, theta0..theta3] per body of "
+                f"'{robot.system.name}', not shape {out.shape}"
+            )
+        mask = np.ones(n, dtype=bool)
+    for i in np.flatnonzero(mask):
+        name = robot.bodies[i]
+        if not np.all(np.isfinite(out[i])):
+            raise TargetError(f"target of body '{name}' is not finite: {out[i]}")
+        norm = np.linalg.norm(out[i, 3:])
+        if abs(norm - 1.0) > 1e-6:
+            raise TargetError(
+                f"target of body '{name}' has Euler parameters of norm {norm:.6g}; they must be a unit "
+                "quaternion (eq. 2.6)"
+            )
+    return out, mask
+
+
+def stiffness_array(robot: Robot, stiffness, mask: np.ndarray | None = None) -> np.ndarray:
+    """k as an (n, 7) array from a scalar, a per-body (n,) vector or an (n, 7) array."""
+    n = len(robot.bodies)
+    k = np.asarray(stiffness, dtype=float)
+    if k.ndim == 0:
+        k = np.full((n, 7), float(k))
+    elif k.shape == (n,):
+        k = np.repeat(k[:, None], 7, axis=1)
+    elif k.shape != (n, 7):
+        raise TargetError(f"stiffness must be a scalar, ({n},) or ({n}, 7), not shape {k.shape}")
+    else:
+        k = k.copy()
+    if not np.all(np.isfinite(k)) or np.any(k < 0):
+        raise TargetError("stiffness must be finite and >= 0")
+    if mask is not None:
+        k[~mask] = 0.0
+    return k
+
+
+def quaternions_from_matrices(R: np.ndarray) -> np.ndarray:
+    """Unit Euler parameters (n, 4), scalar first, of rotation matrices (n, 3, 3).
+
+    Inverts eq. 2.7 through the symmetric matrix 4 theta theta^T, whose entries are
+    linear in R, using its largest diagonal entry (Shepperd's method); eq. 2.9-2.10
+    are not used because, as printed, they lose the sign of the rotation axis.
+    The sign is chosen with theta0 >= 0.
+    """
+    r00, r01, r02 = R[:, 0, 0], R[:, 0, 1], R[:, 0, 2]
+    r10, r11, r12 = R[:, 1, 0], R[:, 1, 1], R[:, 1, 2]
+    r20, r21, r22 = R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]
+    P = np.empty((R.shape[0], 4, 4))
+    P[:, 0, 0] = 1 + r00 + r11 + r22
+    P[:, 1, 1] = 1 + r00 - r11 - r22
+    P[:, 2, 2] = 1 - r00 + r11 - r22
+    P[:, 3, 3] = 1 - r00 - r11 + r22
+    P[:, 0, 1] = P[:, 1, 0] = r21 - r12
+    P[:, 0, 2] = P[:, 2, 0] = r02 - r20
+    P[:, 0, 3] = P[:, 3, 0] = r10 - r01
+    P[:, 1, 2] = P[:, 2, 1] = r01 + r10
+    P[:, 1, 3] = P[:, 3, 1] = r02 + r20
+    P[:, 2, 3] = P[:, 3, 2] = r12 + r21
+    d = np.diagonal(P, axis1=1, axis2=2)
+    c = np.argmax(d, axis=1)
+    rows = np.arange(len(c))
+    theta = P[rows, :, c] / (2.0 * np.sqrt(d[rows, c]))[:, None]
+    return theta * np.where(theta[:, :1] < 0, -1.0, 1.0)  # theta0 >= 0, as Robot.maximal_coordinates
+
+
+_EPS = np.zeros((3, 9))  # v @ _EPS is [v]x flattened (eq. 2.3)
+for _i, _j, _k, _sgn in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 2, 0, -1), (1, 0, 2, 1), (2, 0, 1, -1), (2, 1, 0, 1)):
+    _EPS[_k, 3 * _i + _j] = _sgn
+
+# E(theta) is linear in theta: E = theta @ _EBASIS reshaped (see _quat_rate_matrices)
+_EBASIS = np.zeros((4, 12))
+for _row, _entries in enumerate(
+    (((1, -1), (2, -1), (3, -1)), ((0, 1), (3, 1), (2, -1)), ((3, -1), (0, 1), (1, 1)), ((2, 1), (1, -1), (0, 1)))
+):
+    for _col, (_comp, _sgn) in enumerate(_entries):
+        _EBASIS[_comp, 3 * _row + _col] = _sgn
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (n, 3, 3) of vectors (n, 3) (eq. 2.3)."""
+    return (v @ _EPS).reshape(-1, 3, 3)
+
+
+def _quat_rate_matrices(theta: np.ndarray) -> np.ndarray:
+    """E(theta) (n, 4, 3) with d theta/dt = 1/2 E(theta) omega for a world-frame omega,
+    i.e. theta_dot = 1/2 [0, omega] (x) theta: E = [-v^T; theta0 I - [v]x], theta = (theta0, v)."""
+    return (theta @ _EBASIS).reshape(-1, 4, 3)
+
+
+class _Structure:
+    """Per-robot constants: which velocity columns move each body, and joint blocks."""
+
+    def __init__(self, robot: Robot):
+        model = robot.model
+        nv = model.nv
+        self.support = np.zeros((len(robot.bodies), nv))
+        for i, f in enumerate(robot.frame_ids):
+            for jid in model.supports[model.frames[f].parentJoint]:
+                if jid == 0:
+                    continue
+                jm = model.joints[jid]
+                self.support[i, jm.idx_v : jm.idx_v + jm.nv] = 1.0
+        col_joint = np.zeros(nv, dtype=int)
+        for jid in range(1, model.njoints):
+            jm = model.joints[jid]
+            col_joint[jm.idx_v : jm.idx_v + jm.nv] = jid
+        # Hessian entries (a <= b) pair an ancestor column a with a descendant b; the
+        # columns of one multi-DoF joint (the free flyer) take the symmetric average.
+        self.same_joint = col_joint[:, None] == col_joint[None, :]
+        self.upper = np.triu(np.ones((nv, nv)))
+        self.strict_upper = np.triu(np.ones((nv, nv)), 1)
+
+
+_STRUCTURES: dict[int, tuple[Robot, _Structure]] = {}
+
+
+def _structure(robot: Robot) -> _Structure:
+    hit = _STRUCTURES.get(id(robot))
+    if hit is None or hit[0] is not robot:
+        if len(_STRUCTURES) > 64:
+            _STRUCTURES.clear()
+        hit = (robot, _Structure(robot))
+        _STRUCTURES[id(robot)] = hit
+    return hit[1]
+
+
+class _Evaluator:
+    """Maximal coordinates, springs, B = d q_max / d q and the Newton Hessian at q."""
+
+    def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray):
+        self.model, self.data = robot.model, robot.data
+        self.frames = robot.frame_ids
+        self.targets = targets
+        self.k = k
+        self.sqrt_k = np.sqrt(k)
+        self.n = len(self.frames)
+        self.s = _structure(robot)
+        self.active = np.flatnonzero(k.any(axis=1))
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        oMf = self.data.oMf
+        H = np.array([oMf[f].homogeneous for f in self.frames])
+        return H[:, :3, 3], H[:, :3, :3]
+
+    def aligned_targets(self, theta: np.ndarray) -> np.ndarray:
+        """Targets with each body's Euler parameters on the primary's side (§2.2.1)."""
+        t = self.targets.copy()
+        t[:, 3:] *= np.where(np.sum(t[:, 3:] * theta, axis=1) < 0, -1.0, 1.0)[:, None]
+        return t
+
+    def linearize(self, q: np.ndarray, hessian: bool = True):
+        """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, q_max."""
+        pin.computeJointJacobians(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        p, R = self.poses()
+        theta = quaternions_from_matrices(R)
+        qmax = np.concatenate([p, theta], axis=1)
+        diff = qmax - self.aligned_targets(theta)
+        rho = self.k * diff  # -F_i (eq. 2.33)
+        energy = 0.5 * float(np.sum(rho * diff))
+        n, nv = self.n, self.model.nv
+        Jw = self.data.J  # world frame: velocity of the point at the origin; omega
+        S = self.s.support[:, None, :]  # (n, 1, nv)
+        Jang = Jw[3:][None] * S  # (n, 3, nv)
+        Jlin = (Jw[:3][None] - _skew(p) @ Jw[3:][None]) * S  # v(p) = v0 + omega x p
+        E = _quat_rate_matrices(theta)
+        Jq = 0.5 * (E @ Jang)  # (n, 4, nv), d theta / d q
+        B = np.concatenate([Jlin, Jq], axis=1).reshape(7 * n, nv)  # d q_max / d q
+        grad = B.T @ rho.ravel()
+        Bk = B * self.sqrt_k.reshape(-1, 1)
+        H = Bk.T @ Bk
+        if hessian:
+            H += self.second_order(rho, theta, E, Jlin, Jang)
+        return energy, grad, H, qmax
+
+    def second_order(self, rho, theta, E, Jlin, Jang) -> np.ndarray:
+        """sum_i rho_i . d^2 q_max,i / dq_a dq_b (the Newton term Gauss-Newton drops).
+
+        For a <= b (column a an ancestor of b): positions rho . (omega_a x J_b);
+        Euler parameters 1/4 [g . (omega_a x omega_b) - (rho_theta . theta)(omega_a . omega_b)]
+        with g = E(theta)^T rho_theta; mirrored below the diagonal.
+        """
+        n, nv = self.n, self.model.nv
+        C = _skew(rho[:, :3]) @ Jang  # rho x omega_a, (n, 3, nv)
+        P = C.reshape(3 * n, nv).T @ Jlin.reshape(3 * n, nv)
+        g = (rho[:, None, 3:] @ E)[:, 0]  # E^T rho_theta
+        Ja = Jang.reshape(3 * n, nv)
+        T1 = -(Ja.T @ (_skew(g) @ Jang).reshape(3 * n, nv))
+        c = np.sum(rho[:, 3:] * theta, axis=1)
+        T2 = Ja.T @ (Jang * c[:, None, None]).reshape(3 * n, nv)
+        A = P + 0.25 * (T1 - T2)
+        U = np.where(self.s.same_joint, 0.5 * (A + A.T), A)
+        return U * self.s.upper + (U * self.s.strict_upper).T
+
+
+def static_update(
+    robot: Robot,
+    q,
+    targets,
+    stiffness=1.0,
+    *,
+    max_iter: int = 100,
+    tol: float = 1e-9,
+) -> StaticUpdateResult:
+    """Pull the primary configuration ``q`` into equilibrium with spring targets (§2.3.3).
+
+    Args:
+        robot: the loaded system (``root="spec"`` or ``"free"``).
+        q: primary configuration (Pinocchio ``q``, radians).
+        targets: intermediate bodies, an (n_bodies, 7) array of [mu, theta0..3] in
+            ``robot.bodies`` order, or a mapping body name -> ``pin.SE3`` (bodies left
+            out pull with no spring).
+        stiffness: k, a scalar, a per-body (n,) vector or an (n, 7) array (eq. 2.33).
+        max_iter: iteration limit; hitting it returns ``converged=False``.
+        tol: convergence threshold on ||B^T Q|| (eq. 2.28).
+
+    Returns:
+        A :class:`StaticUpdateResult`; a non-converged update is returned, not raised.
+    """
+    q = np.array(q, dtype=float)
+    if q.shape != (robot.model.nq,):
+        raise TargetError(f"q must have shape ({robot.model.nq},), not {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise TargetError("q is not finite")
+    if robot.root == "free":
+        q[3:7] /= np.linalg.norm(q[3:7])
+    tgt, mask = target_array(robot, targets)
+    k = stiffness_array(robot, stiffness, mask)
+    ev = _Evaluator(robot, tgt, k)
+    nv = robot.model.nv
+    eye = np.eye(nv)
+
+    energy, grad, H, qmax = ev.linearize(q)
+    lam = 1e-8
+    it = 0
+    converged = False
+    message = "iteration limit reached"
+    while True:
+        gnorm = float(np.linalg.norm(grad))
+        if gnorm <= tol:
+            converged, message = True, "||B^T Q|| below tolerance"
+            break
+        if it >= max_iter:
+            break
+        it += 1
+        # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
+        scale = max(float(np.max(np.abs(np.diag(H)))), 1e-12)
+        accepted = False
+        for _ in range(40):
+            try:
+                L = np.linalg.cholesky(H + lam * scale * eye)
+            except np.linalg.LinAlgError:
+                lam = max(lam * 10.0, 1e-8)
+                continue
+            step = -np.linalg.solve(L.T, np.linalg.solve(L, grad))
+            q_new = pin.integrate(robot.model, q, step)
+            lin = ev.linearize(q_new)
+            if np.isfinite(lin[0]) and lin[0] <= energy + 1e-15 * max(1.0, energy):
+                accepted = True
+                lam = max(lam * 0.1, 1e-12)
+                break
+            lam = max(lam * 10.0, 1e-8)
+        if not accepted:
+            message = "no step decreases the energy further"
+            break
+        q = q_new
+        energy, grad, H, qmax = lin
+    rho = k * (qmax - ev.aligned_targets(qmax[:, 3:]))
+    return StaticUpdateResult(q, converged, it, float(np.linalg.norm(grad)), energy, -rho, message)

@@ -1,0 +1,234 @@
+"""The static update (thesis §2.3): equilibrium, sign consistency, stiffness, bad input.
+
+Energies and gradients here are recomputed independently of the solver: the
+spring energy 1/2 sum k (q' - q)^2 from ``robot.maximal_coordinates`` and its
+derivatives by finite differences taken with ``pin.integrate``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import kms2pin
+from kms2pin.static_update import StaticUpdateResult, _Evaluator, static_update, stiffness_array, target_array
+
+SPECS = Path(__file__).resolve().parents[1] / "specs"
+
+ROBOTS = {}
+
+
+def robot(name: str, root: str = "spec") -> kms2pin.Robot:
+    key = (name, root)
+    if key not in ROBOTS:
+        ROBOTS[key] = kms2pin.load(SPECS / f"{name}.kms", root=root)
+    return ROBOTS[key]
+
+
+CASES = [(n, r) for n in ("puma600", "lowerbody", "fullbody", "jplhand") for r in ("spec", "free")]
+
+
+def qmul(a, b):
+    return np.array([
+        a[0] * b[0] - a[1:] @ b[1:],
+        *(a[0] * b[1:] + b[0] * a[1:] + np.cross(a[1:], b[1:])),
+    ])
+
+
+def noisy_targets(r: kms2pin.Robot, q, rng, angle_deg=30.0, frac=0.2):
+    """Intermediate bodies: each primary body moved by up to `frac` of the model height
+    and turned by up to `angle_deg` about a random axis (thesis §4.1's synthetic M-steps)."""
+    t = r.maximal_coordinates(q)
+    t[:, :3] += rng.uniform(-1, 1, (len(t), 3)) * frac * r.height / np.sqrt(3)
+    for i in range(len(t)):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        half = np.radians(rng.uniform(0, angle_deg)) / 2
+        t[i, 3:] = qmul(np.r_[np.cos(half), np.sin(half) * axis], t[i, 3:])
+    return t
+
+
+def energy(r, q, targets, k=1.0):
+    """Spring energy with each target's Euler parameters on the primary's side."""
+    qm = r.maximal_coordinates(q)
+    t = targets.copy()
+    flip = np.sum(t[:, 3:] * qm[:, 3:], axis=1) < 0
+    t[flip, 3:] *= -1
+    return 0.5 * np.sum(np.broadcast_to(k, qm.shape) * (qm - t) ** 2)
+
+
+def fd_gradient(r, q, f, h=1e-6):
+    g = np.zeros(r.nv)
+    for a in range(r.nv):
+        e = np.zeros(r.nv)
+        e[a] = h
+        g[a] = (f(pin.integrate(r.model, q, e)) - f(pin.integrate(r.model, q, -e))) / (2 * h)
+    return g
+
+
+@pytest.mark.parametrize("name,root", CASES)
+def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root):
+    r = robot(name, root)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q_star = r.random_configuration(rng, 90)
+        if root == "free":
+            q_star[:3] += rng.normal(0, 0.3, 3)
+        q0 = pin.integrate(r.model, q_star, rng.normal(0, 0.25, r.nv))
+        res = static_update(r, q0, r.maximal_coordinates(q_star), tol=1e-11)
+        assert res.converged, res.message
+        assert np.linalg.norm(pin.difference(r.model, res.q, q_star)) < 1e-8
+        assert res.energy < 1e-16
+
+
+@pytest.mark.parametrize("name,root", CASES)
+def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root):
+    """B^T Q = 0 (eq. 2.28) checked without the solver's Jacobian: the finite-difference
+    gradient of the independently computed energy vanishes at the result."""
+    r = robot(name, root)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        q0 = r.random_configuration(rng, 90)
+        t = noisy_targets(r, q0, rng)
+        res = static_update(r, q0, t)
+        assert res.converged, res.message
+        assert res.energy == pytest.approx(energy(r, res.q, t), rel=1e-12)
+        assert res.energy < energy(r, q0, t)
+        g = fd_gradient(r, res.q, lambda q: energy(r, q, t))
+        assert np.abs(g).max() < 1e-6 * max(1.0, res.energy)
+        # forces are eq. 2.33 at the equilibrium
+        qm = r.maximal_coordinates(res.q)
+        tt = t.copy()
+        tt[np.sum(tt[:, 3:] * qm[:, 3:], axis=1) < 0, 3:] *= -1
+        np.testing.assert_allclose(res.forces, tt - qm, atol=1e-12)
+
+
+@pytest.mark.parametrize("name,root", [("fullbody", "spec"), ("jplhand", "free"), ("puma600", "free")])
+def test_gradient_and_newton_hessian_match_finite_differences(name, root):
+    r = robot(name, root)
+    rng = np.random.default_rng(3)
+    q = r.random_configuration(rng, 120)
+    t = noisy_targets(r, q, rng, 60, 0.3)
+    tgt, mask = target_array(r, t)
+    k = rng.uniform(0.5, 2.0, (len(r.bodies), 7))
+    ev = _Evaluator(r, tgt, stiffness_array(r, k, mask))
+    e, grad, H, _ = ev.linearize(q)
+    assert e == pytest.approx(energy(r, q, t, k), rel=1e-12)
+    np.testing.assert_allclose(grad, fd_gradient(r, q, lambda x: energy(r, x, t, k)), atol=1e-6)
+    h = 1e-6
+    Hfd = np.zeros_like(H)
+    for a in range(r.nv):
+        d = np.zeros(r.nv)
+        d[a] = h
+        Hfd[:, a] = (ev.linearize(pin.integrate(r.model, q, d))[1] - ev.linearize(pin.integrate(r.model, q, -d))[1]) / (2 * h)
+    if root == "free":  # the free flyer's tangent is not a vector space: compare the symmetric part off its block
+        Hfd = 0.5 * (Hfd + Hfd.T)
+        np.testing.assert_allclose(H[6:, 6:], Hfd[6:, 6:], atol=1e-5)
+        np.testing.assert_allclose(H[:6, 6:], Hfd[:6, 6:], atol=1e-5)
+    else:
+        np.testing.assert_allclose(H, Hfd, atol=1e-5)
+
+
+def test_a_target_equal_to_the_primary_pose_exerts_no_force_whatever_its_sign():
+    r = robot("fullbody")
+    q = r.random_configuration(np.random.default_rng(4), 90)
+    t = r.maximal_coordinates(q)
+    t[::2, 3:] *= -1  # the same rotations with the other sign (thesis §2.2.1)
+    res = static_update(r, q, t)
+    assert res.converged and res.iterations == 0
+    assert np.abs(res.forces).max() < 1e-12
+    assert res.energy < 1e-24
+    np.testing.assert_array_equal(res.q, q)
+
+
+def test_a_much_stiffer_body_ends_much_closer_to_its_own_target():
+    """As k_i grows, body i approaches the closest pose it can reach alone (its target
+    may be unreachable: the spec's root joint only turns), whatever the others want."""
+    r = robot("lowerbody")
+    rng = np.random.default_rng(5)
+    q = r.random_configuration(rng, 60)
+    t = noisy_targets(r, q, rng)
+    i = r.index("leftShin")
+
+    def dist(res):
+        qm = r.maximal_coordinates(res.q)[i]
+        return min(np.linalg.norm(qm - t[i]), np.linalg.norm(qm - np.r_[t[i, :3], -t[i, 3:]]))
+
+    alone = static_update(r, q, {"leftShin": t[i]})
+    soft = static_update(r, q, t)
+    k = np.ones(len(r.bodies))
+    k[i] = 1e4
+    stiff = static_update(r, q, t, stiffness=k)
+    assert alone.converged and soft.converged and stiff.converged
+    assert dist(soft) > 1.5 * dist(alone)
+    assert dist(stiff) - dist(alone) < 0.02 * (dist(soft) - dist(alone))
+
+
+def test_per_coordinate_stiffness_zero_on_orientation_pulls_positions_only():
+    r = robot("puma600")
+    rng = np.random.default_rng(6)
+    q = r.random_configuration(rng, 60)
+    q_star = r.random_configuration(rng, 60)
+    t = r.maximal_coordinates(q_star)
+    t[:, 3:] = noisy_targets(r, q_star, rng, 90, 0.0)[:, 3:]  # orientations that disagree
+    k = np.zeros((len(r.bodies), 7))
+    k[:, :3] = 1.0
+    res = static_update(r, q, t, stiffness=k)
+    assert res.converged
+    assert np.abs(res.forces[:, 3:]).max() == 0.0
+    assert res.energy == pytest.approx(energy(r, res.q, t, k), rel=1e-12)
+
+
+def test_bodies_left_out_of_a_mapping_pull_with_no_spring():
+    r = robot("fullbody")
+    q = r.q_rest
+    goal = r.random_configuration(np.random.default_rng(7), 40)
+    pose = r.body_pose(goal, "leftHand")
+    res = static_update(r, q, {"leftHand": pose})
+    assert res.converged
+    assert res.energy < 1e-16
+    reached = r.body_pose(res.q, "leftHand")
+    assert np.abs(reached.translation - pose.translation).max() < 1e-7
+    others = [i for i, b in enumerate(r.bodies) if b != "leftHand"]
+    assert np.abs(res.forces[others]).max() == 0.0
+
+
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        (lambda t: t.__setitem__((5, 0), np.nan), "leftFoot"),
+        (lambda t: t.__setitem__((7, slice(3, 7)), [1.0, 1.0, 0.0, 0.0]), "rightShin"),
+    ],
+)
+def test_nan_or_non_unit_targets_raise_a_value_error_naming_the_body(bad, match):
+    r = robot("lowerbody")
+    t = r.maximal_coordinates(r.q_rest)
+    bad(t)
+    with pytest.raises(ValueError, match=match):
+        static_update(r, r.q_rest, t)
+
+
+def test_malformed_targets_and_stiffness_are_rejected_with_clear_messages():
+    r = robot("lowerbody")
+    t = r.maximal_coordinates(r.q_rest)
+    with pytest.raises(kms2pin.TargetError, match=r"\(9, 7\)"):
+        static_update(r, r.q_rest, t[:4])
+    with pytest.raises(kms2pin.TargetError, match="did you mean 'leftShin'"):
+        static_update(r, r.q_rest, {"leftShn": pin.SE3.Identity()})
+    with pytest.raises(kms2pin.TargetError, match="stiffness"):
+        static_update(r, r.q_rest, t, stiffness=-1.0)
+
+
+def test_a_non_converging_update_returns_its_diagnostics_instead_of_raising():
+    r = robot("jplhand")
+    rng = np.random.default_rng(8)
+    q = r.random_configuration(rng, 90)
+    t = noisy_targets(r, q, rng, 60, 0.3)
+    res = static_update(r, q, t, max_iter=1)
+    assert isinstance(res, StaticUpdateResult)
+    assert not res.converged and res.iterations == 1
+    assert res.residual > 1e-9 and "limit" in res.message
+    assert np.isfinite(res.energy) and res.forces.shape == (len(r.bodies), 7)
