@@ -1,7 +1,9 @@
 """kms2pin: the 1999 kinematic model compiler (Sudderth) on Pinocchio.
 
 Pipeline: language (:mod:`kms2pin.lang`) -> model (:mod:`kms2pin.model`) ->
-URDF/SRDF (:mod:`kms2pin.urdf`) -> Pinocchio robot (:mod:`kms2pin.robot`).
+URDF/SRDF (:mod:`kms2pin.urdf`) -> Pinocchio robot (:mod:`kms2pin.robot`) ->
+static update (:mod:`kms2pin.virtual_work`) -> ECM tracking (:mod:`kms2pin.ecm`) ->
+viewer (:mod:`kms2pin.viewer`).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from .errors import Kms2pinError, RobotError, SpecError, TargetError
 from .lang import parse, parse_text
 from .model import Body, BoundVector, Joint, ModelSpec, System
 from .robot import Robot, euler_parameters, load
+from .virtual_work import StaticUpdateResult, static_update
 
 __version__ = "0.1.0"
 
@@ -22,6 +25,7 @@ __all__ = [
     "Robot",
     "RobotError",
     "SpecError",
+    "StaticUpdateResult",
     "System",
     "TargetError",
     "__version__",
@@ -29,4 +33,5 @@ __all__ = [
     "load",
     "parse",
     "parse_text",
+    "static_update",
 ]

@@ -14,7 +14,7 @@ import pinocchio as pin
 import pytest
 
 import kms2pin
-from kms2pin.static_update import StaticUpdateResult, _Evaluator, static_update, stiffness_array, target_array
+from kms2pin.virtual_work import StaticUpdateResult, _Evaluator, static_update, stiffness_array, target_array
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 
