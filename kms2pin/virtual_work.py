@@ -354,3 +354,27 @@ def static_update(
         energy, grad, H, qmax = lin
     rho = k * (qmax - ev.aligned_targets(qmax[:, 3:]))
     return StaticUpdateResult(q, converged, it, float(np.linalg.norm(grad)), energy, -rho, message)
+
+
+def perturbed_targets(
+    robot: Robot,
+    q,
+    rng: np.random.Generator,
+    angle_deg: float = 30.0,
+    fraction: float = 0.2,
+) -> np.ndarray:
+    """Synthetic intermediate bodies (thesis §4.1): every primary body of configuration
+    ``q`` moved by up to ``fraction`` of the model height (uniform in a cube) and turned
+    by up to ``angle_deg`` about a uniformly random axis.  Returns (n, 7) targets."""
+    t = robot.maximal_coordinates(q)
+    n = len(t)
+    t[:, :3] += rng.uniform(-1.0, 1.0, (n, 3)) * fraction * robot.height / np.sqrt(3.0)
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    half = np.radians(rng.uniform(0.0, angle_deg, n)) / 2.0
+    turn = np.concatenate([np.cos(half)[:, None], np.sin(half)[:, None] * axes], axis=1)
+    w1, v1 = turn[:, :1], turn[:, 1:]
+    w2, v2 = t[:, 3:4].copy(), t[:, 4:].copy()
+    t[:, 3:4] = w1 * w2 - np.sum(v1 * v2, axis=1, keepdims=True)
+    t[:, 4:] = w1 * v2 + w2 * v1 + np.cross(v1, v2)
+    return t

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from lark import Lark, Token, Transformer, v_args
-from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
+from lark import Lark, Token, Transformer
+from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken, VisitError
 
 from ..errors import Diagnostic, SpecError
 from ..model import Loc
@@ -31,94 +31,95 @@ def _loc(meta_or_token) -> Loc:
     return Loc(getattr(meta_or_token, "line", 0) or 0, getattr(meta_or_token, "column", 0) or 0)
 
 
-@v_args(meta=True)
 class _ToAst(Transformer):
-    """Builds :mod:`kms2pin.lang.ast` nodes; tokens keep their line and column."""
+    """Builds :mod:`kms2pin.lang.ast` nodes while parsing (Lark's inline LALR
+    transformer: no parse tree); every node's location is its first token's."""
 
-    def start(self, meta, items):
+    def start(self, items):
         return tuple(items)
 
-    def empty(self, meta, items):
-        return A.Empty(_loc(meta))
+    def empty(self, items):
+        return A.Empty(_loc(items[0]))
 
-    def var_decl(self, meta, items):
+    def var_decl(self, items):
         type_, name = items[0], items[1]
         init = items[2] if len(items) > 2 else None
-        return A.VarDecl(_loc(meta), str(type_), str(name), _loc(name), init)
+        return A.VarDecl(_loc(type_), str(type_), str(name), _loc(name), init)
 
-    def assign(self, meta, items):
+    def assign(self, items):
         name, op, value = items
-        return A.Assign(_loc(meta), str(name), str(op), value)
+        return A.Assign(_loc(name), str(name), str(op), value)
 
-    def if_stmt(self, meta, items):
-        other = items[2] if len(items) > 2 else None
-        return A.If(_loc(meta), items[0], items[1], other)
+    def if_stmt(self, items):
+        kw, test, then, other = items
+        return A.If(_loc(kw), test, then, other)
 
-    def block(self, meta, items):
-        return A.Block(_loc(meta), tuple(items))
+    def block(self, items):
+        brace, *body = items
+        return A.Block(_loc(brace), tuple(body))
 
-    def call_stmt(self, meta, items):
+    def call_stmt(self, items):
         name, args = items
-        return A.CallStmt(_loc(meta), str(name), tuple(args or ()))
+        return A.CallStmt(_loc(name), str(name), tuple(args or ()))
 
-    def bvec_def(self, meta, items):
-        name, *body = items
-        return A.BvecDef(_loc(meta), str(name), _loc(name), tuple(body))
+    def bvec_def(self, items):
+        kw, name, *body = items
+        return A.BvecDef(_loc(kw), str(name), _loc(name), tuple(body))
 
-    def body_literal(self, meta, items):
-        name, *body = items
-        return A.BodyLiteral(_loc(meta), str(name), _loc(name), tuple(body))
+    def body_literal(self, items):
+        kw, name, *body = items
+        return A.BodyLiteral(_loc(kw), str(name), _loc(name), tuple(body))
 
-    def body_func_def(self, meta, items):
-        name, params, *body = items
-        return A.BodyFuncDef(_loc(meta), str(name), _loc(name), tuple(params or ()), tuple(body))
+    def body_func_def(self, items):
+        kw, name, params, *body = items
+        return A.BodyFuncDef(_loc(kw), str(name), _loc(name), tuple(params or ()), tuple(body))
 
-    def body_instance(self, meta, items):
+    def body_instance(self, items):
         func, name, args = items
-        return A.BodyInstance(_loc(meta), str(func), str(name), _loc(name), tuple(args or ()))
+        return A.BodyInstance(_loc(func), str(func), str(name), _loc(name), tuple(args or ()))
 
-    def system_def(self, meta, items):
-        name, *body = items
-        return A.SystemDef(_loc(meta), str(name), _loc(name), tuple(body))
+    def system_def(self, items):
+        kw, name, *body = items
+        return A.SystemDef(_loc(kw), str(name), _loc(name), tuple(body))
 
-    def constraint(self, meta, items):
-        kind, args = items
-        return A.Constraint(_loc(meta), str(kind), _loc(kind), tuple(args or ()))
+    def constraint(self, items):
+        kw, kind, args = items
+        return A.Constraint(_loc(kw), str(kind), _loc(kind), tuple(args or ()))
 
-    def params(self, meta, items):
+    def params(self, items):
         return tuple(items)
 
-    def param(self, meta, items):
+    def param(self, items):
         type_, name = items
         return A.Param(_loc(name), str(type_), str(name))
 
-    def args(self, meta, items):
+    def args(self, items):
         return tuple(items)
 
-    def cond(self, meta, items):
-        return A.Cond(_loc(meta), *items)
+    def cond(self, items):
+        return A.Cond(items[0].loc, *items)
 
-    def binop(self, meta, items):
+    def binop(self, items):
         left, op, right = items
         return A.BinOp(_loc(op), str(op), left, right)
 
-    def unop(self, meta, items):
+    def unop(self, items):
         op, operand = items
         return A.UnOp(_loc(op), str(op), operand)
 
-    def number(self, meta, items):
+    def number(self, items):
         return A.Number(_loc(items[0]), float(items[0]))
 
-    def true(self, meta, items):
-        return A.Bool(_loc(meta), True)
+    def true(self, items):
+        return A.Bool(_loc(items[0]), True)
 
-    def false(self, meta, items):
-        return A.Bool(_loc(meta), False)
+    def false(self, items):
+        return A.Bool(_loc(items[0]), False)
 
-    def dotted(self, meta, items):
+    def dotted(self, items):
         return A.Name(_loc(items[0]), tuple(str(t) for t in items), tuple(_loc(t) for t in items))
 
-    def call(self, meta, items):
+    def call(self, items):
         name, args = items
         return A.Call(_loc(name), str(name), tuple(args or ()))
 
@@ -129,8 +130,8 @@ def _parser() -> Lark:
         "grammar.lark",
         rel_to=__file__,
         parser="lalr",
-        propagate_positions=True,
         maybe_placeholders=True,
+        transformer=_ToAst(),
         cache=True,
     )
 
@@ -193,12 +194,6 @@ def _syntax_diagnostic(err: UnexpectedInput, text: str, path: str) -> Diagnostic
 def parse_text(text: str, path: str = "<string>") -> tuple[A.Node, ...]:
     """Parse spec text into a tuple of top-level statements (raises SpecError)."""
     try:
-        tree = _parser().parse(text)
+        return _parser().parse(text)
     except UnexpectedInput as err:
         raise SpecError([_syntax_diagnostic(err, text, path)]) from None
-    except RecursionError:
-        raise SpecError([Diagnostic(path, 1, 1, "the spec is nested too deeply to parse")]) from None
-    try:
-        return _ToAst().transform(tree)
-    except RecursionError:
-        raise SpecError([Diagnostic(path, 1, 1, "the spec is nested too deeply to parse")]) from None
