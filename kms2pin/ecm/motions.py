@@ -1,0 +1,145 @@
+"""Named synthetic motions for ``kms2pin synth``: sequences of configurations (T, nq).
+
+Every motion starts at the spec's rest pose (frame 0 is ``robot.q_rest``, the
+tracker's default start) and is smooth at 30 frames/s.
+
+- ``sweep``: each revolute joint in turn swings +-40 deg about its rest angle.
+- ``walk``: a walking gait (hips, knees, ankles, shoulders, elbows found by name;
+  other joints sway gently); with ``root="free"`` the body also walks across the
+  view along world x, turning round at the ends.
+- ``random``: every joint a sum of random low-frequency sinusoids (+-30 deg).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from ..errors import Kms2pinError
+from ..robot import Robot
+
+MOTIONS = ("sweep", "walk", "random")
+FPS = 30.0
+
+
+def _revolute_slots(robot: Robot) -> list[tuple[str, int]]:
+    out = []
+    for jid in range(1, robot.model.njoints):
+        j = robot.model.joints[jid]
+        if j.nq == 1:
+            out.append((robot.model.names[jid], j.idx_q))
+    return out
+
+
+def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    """Smooth 0 -> 1 between t0 and t1 (cosine)."""
+    x = np.clip((t - t0) / max(t1 - t0, 1e-9), 0.0, 1.0)
+    return 0.5 - 0.5 * np.cos(np.pi * x)
+
+
+def sweep(robot: Robot, frames: int) -> np.ndarray:
+    slots = _revolute_slots(robot)
+    q = np.repeat(robot.q_rest[None], frames, axis=0)
+    if not slots:
+        return q
+    per = frames / len(slots)
+    t = np.arange(frames)
+    for k, (_, idx) in enumerate(slots):
+        local = (t - k * per) / per
+        inside = (local >= 0) & (local < 1)
+        q[inside, idx] += np.radians(40.0) * np.sin(2 * np.pi * local[inside])
+    return q
+
+
+def _gait_angle(name: str, phase: np.ndarray) -> np.ndarray:
+    """Joint offsets (rad) of a walking gait; ``phase`` in radians, left leads right by pi."""
+    low = name.lower()
+    side = np.pi if "right" in low else 0.0
+    ph = phase + side
+    if "hip" in low:
+        return np.radians(25.0) * np.sin(ph)
+    if "knee" in low:
+        return np.radians(25.0) * (1.0 - np.cos(ph)) * 0.5 + np.radians(10.0) * np.sin(ph - 0.5)
+    if "ankle" in low:
+        return np.radians(12.0) * np.sin(ph - 1.0)
+    if "shoulder" in low:
+        return -np.radians(20.0) * np.sin(ph)
+    if "elbow" in low:
+        return np.radians(15.0) * (1.0 - np.cos(ph)) * 0.5
+    return np.radians(6.0) * np.sin(ph + 0.7)
+
+
+def walk(robot: Robot, frames: int) -> np.ndarray:
+    t = np.arange(frames) / FPS
+    phase = 2.0 * np.pi * t / 1.2  # one gait cycle per 1.2 s
+    q = np.repeat(robot.q_rest[None], frames, axis=0)
+    for name, idx in _revolute_slots(robot):
+        if robot.root == "spec" and idx == 0 and name == robot.system.joints[0].name:
+            continue  # the spec's own root joint stays put
+        q[:, idx] += _gait_angle(name, phase) * _ramp(t, 0.0, 0.5)
+    if robot.root == "free":
+        rest = pin.XYZQUATToSE3(robot.q_rest[:7])
+        up = np.array([0.0, 1.0, 0.0])
+        span = 0.25 * robot.height  # walk +-span along world x
+        period = 8.0  # s for a there-and-back
+        s = np.sin(2 * np.pi * t / period)
+        x = span * s
+        heading = np.where(np.cos(2 * np.pi * t / period) >= 0, 1.0, -1.0)
+        yaw = -np.pi / 2 * heading  # face the way it walks (the specs face -z at rest)
+        yaw_smooth = np.convolve(np.pad(yaw, 15, mode="edge"), np.ones(31) / 31, mode="valid")
+        for f in range(frames):
+            R = pin.exp3(up * yaw_smooth[f]) @ rest.rotation
+            p = rest.translation + np.array([x[f], 0.02 * robot.height * np.cos(2 * phase[f]), 0.0])
+            q[f, :7] = pin.SE3ToXYZQUAT(pin.SE3(R, p))
+        # start at rest: blend the first half second
+        w = _ramp(t, 0.0, 0.5)
+        for f in range(frames):
+            if w[f] < 1.0:
+                q[f, :7] = pin.SE3ToXYZQUAT(
+                    pin.SE3.Interpolate(rest, pin.XYZQUATToSE3(q[f, :7]), float(w[f]))
+                )
+    return q
+
+
+def random_smooth(robot: Robot, frames: int, rng: np.random.Generator) -> np.ndarray:
+    t = np.arange(frames) / FPS
+    q = np.repeat(robot.q_rest[None], frames, axis=0)
+    ramp = _ramp(t, 0.0, 0.5)
+    for _, idx in _revolute_slots(robot):
+        freqs = rng.uniform(0.1, 0.6, 3)
+        amps = rng.uniform(0.3, 1.0, 3)
+        amps *= np.radians(30.0) / amps.sum()
+        phases = rng.uniform(0, 2 * np.pi, 3)
+        wave = sum(
+            a * (np.sin(2 * np.pi * f * t + p) - np.sin(p)) for a, f, p in zip(amps, freqs, phases)
+        )
+        q[:, idx] += wave * ramp
+    if robot.root == "free":
+        rest = pin.XYZQUATToSE3(robot.q_rest[:7])
+        drift = rng.uniform(-1, 1, (2, 3)) * 0.1 * robot.height
+        turn = rng.uniform(-1, 1, 3) * np.radians(20.0)
+        for f in range(frames):
+            s = np.sin(2 * np.pi * 0.1 * t[f]) * ramp[f]
+            R = pin.exp3(turn * s) @ rest.rotation
+            p = (
+                rest.translation
+                + drift[0] * s
+                + drift[1] * (1 - np.cos(2 * np.pi * 0.07 * t[f])) * ramp[f]
+            )
+            q[f, :7] = pin.SE3ToXYZQUAT(pin.SE3(R, p))
+    return q
+
+
+def make_motion(
+    robot: Robot, name: str, frames: int, rng: np.random.Generator | None = None
+) -> np.ndarray:
+    """Configurations (frames, nq) of motion ``name`` (one of :data:`MOTIONS`)."""
+    if frames < 1:
+        raise Kms2pinError(f"a motion needs at least one frame, not {frames}")
+    if name == "sweep":
+        return sweep(robot, frames)
+    if name == "walk":
+        return walk(robot, frames)
+    if name == "random":
+        return random_smooth(robot, frames, rng if rng is not None else np.random.default_rng(0))
+    raise Kms2pinError(f"unknown motion '{name}'; choose one of {', '.join(MOTIONS)}")
