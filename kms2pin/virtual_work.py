@@ -364,11 +364,15 @@ def perturbed_targets(
     fraction: float = 0.2,
 ) -> np.ndarray:
     """Synthetic intermediate bodies (thesis §4.1): every primary body of configuration
-    ``q`` moved by up to ``fraction`` of the model height (uniform in a cube) and turned
-    by up to ``angle_deg`` about a uniformly random axis.  Returns (n, 7) targets."""
+    ``q`` moved by up to ``fraction`` of its own length (twice its largest inner
+    semi-axis; uniform in a ball) and turned by up to ``angle_deg`` about a uniformly
+    random axis.  Returns (n, 7) targets [mu, theta0..3]."""
     t = robot.maximal_coordinates(q)
     n = len(t)
-    t[:, :3] += rng.uniform(-1.0, 1.0, (n, 3)) * fraction * robot.height / np.sqrt(3.0)
+    length = np.array([2.0 * robot.inner(b).max() for b in robot.bodies])
+    d = rng.normal(size=(n, 3))
+    d *= (rng.uniform(0.0, 1.0, n) ** (1 / 3) / np.linalg.norm(d, axis=1))[:, None]
+    t[:, :3] += d * (fraction * length)[:, None]
     axes = rng.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     half = np.radians(rng.uniform(0.0, angle_deg, n)) / 2.0
