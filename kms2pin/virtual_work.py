@@ -121,35 +121,6 @@ def stiffness_array(robot: Robot, stiffness, mask: np.ndarray | None = None) -> 
     return k
 
 
-def quaternions_from_matrices(R: np.ndarray) -> np.ndarray:
-    """Unit Euler parameters (n, 4), scalar first, of rotation matrices (n, 3, 3).
-
-    Inverts eq. 2.7 through the symmetric matrix 4 theta theta^T, whose entries are
-    linear in R, using its largest diagonal entry (Shepperd's method); eq. 2.9-2.10
-    are not used because, as printed, they lose the sign of the rotation axis.
-    The sign is chosen with theta0 >= 0.
-    """
-    r00, r01, r02 = R[:, 0, 0], R[:, 0, 1], R[:, 0, 2]
-    r10, r11, r12 = R[:, 1, 0], R[:, 1, 1], R[:, 1, 2]
-    r20, r21, r22 = R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]
-    P = np.empty((R.shape[0], 4, 4))
-    P[:, 0, 0] = 1 + r00 + r11 + r22
-    P[:, 1, 1] = 1 + r00 - r11 - r22
-    P[:, 2, 2] = 1 - r00 + r11 - r22
-    P[:, 3, 3] = 1 - r00 - r11 + r22
-    P[:, 0, 1] = P[:, 1, 0] = r21 - r12
-    P[:, 0, 2] = P[:, 2, 0] = r02 - r20
-    P[:, 0, 3] = P[:, 3, 0] = r10 - r01
-    P[:, 1, 2] = P[:, 2, 1] = r01 + r10
-    P[:, 1, 3] = P[:, 3, 1] = r02 + r20
-    P[:, 2, 3] = P[:, 3, 2] = r12 + r21
-    d = np.diagonal(P, axis1=1, axis2=2)
-    c = np.argmax(d, axis=1)
-    rows = np.arange(len(c))
-    theta = P[rows, :, c] / (2.0 * np.sqrt(d[rows, c]))[:, None]
-    return theta * np.where(theta[:, :1] < 0, -1.0, 1.0)  # theta0 >= 0, as Robot.maximal_coordinates
-
-
 _EPS = np.zeros((3, 9))  # v @ _EPS is [v]x flattened (eq. 2.3)
 for _i, _j, _k, _sgn in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 2, 0, -1), (1, 0, 2, 1), (2, 0, 1, -1), (2, 1, 0, 1)):
     _EPS[_k, 3 * _i + _j] = _sgn
@@ -224,10 +195,16 @@ class _Evaluator:
         self.s = _structure(robot)
         self.active = np.flatnonzero(k.any(axis=1))
 
-    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+    def coordinates(self) -> np.ndarray:
+        """Maximal coordinates (n, 7) of the frames in ``data`` (theta0 >= 0)."""
         oMf = self.data.oMf
-        H = np.array([oMf[f].homogeneous for f in self.frames])
-        return H[:, :3, 3], H[:, :3, :3]
+        xq = np.array([pin.SE3ToXYZQUAT(oMf[f]) for f in self.frames])  # x y z qx qy qz qw
+        qmax = np.empty_like(xq)
+        qmax[:, :3] = xq[:, :3]
+        qmax[:, 3] = xq[:, 6]
+        qmax[:, 4:] = xq[:, 3:6]
+        qmax[:, 3:] *= np.where(qmax[:, 3:4] < 0, -1.0, 1.0)
+        return qmax
 
     def aligned_targets(self, theta: np.ndarray) -> np.ndarray:
         """Targets with each body's Euler parameters on the primary's side (§2.2.1)."""
@@ -239,9 +216,8 @@ class _Evaluator:
         """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, q_max."""
         pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        p, R = self.poses()
-        theta = quaternions_from_matrices(R)
-        qmax = np.concatenate([p, theta], axis=1)
+        qmax = self.coordinates()
+        p, theta = qmax[:, :3], qmax[:, 3:]
         diff = qmax - self.aligned_targets(theta)
         rho = self.k * diff  # -F_i (eq. 2.33)
         energy = 0.5 * float(np.sum(rho * diff))
