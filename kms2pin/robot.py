@@ -48,6 +48,13 @@ class Robot:
         self.system = system
         self.root = root
         free = root == "free"
+        anchored = [j.child for j in system.joints if j.parent is None]
+        if free and len(anchored) != 1:
+            raise RobotError(
+                f"root='free' replaces the joint to the inertial frame by a free flyer, but "
+                f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
+                "use root='spec' or keep one"
+            )
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
         self.srdf = to_srdf(system, source, free_root=free)

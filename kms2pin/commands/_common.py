@@ -21,6 +21,12 @@ def read_model(path: str) -> ModelSpec:
     return parse_text(text, shown)
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_files_atomically(files: dict[Path, str | bytes]) -> None:
     """Write every file to a temporary sibling first, then rename all of them,
     so an error leaves no half-written output."""
@@ -31,6 +37,7 @@ def write_files_atomically(files: dict[Path, str | bytes]) -> None:
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
             with os.fdopen(fd, "wb") as f:
                 f.write(content.encode() if isinstance(content, str) else content)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give what open() would
             staged.append((tmp, path))
         for tmp, path in staged:
             os.replace(tmp, path)

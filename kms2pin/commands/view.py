@@ -1,0 +1,100 @@
+"""Show a model in meshcat with joint sliders (the thesis's GUI, §3.2.3), or write
+a standalone HTML page / a PNG picture of it.
+
+Without --no-serve, a meshcat server and a joint-control page are started on
+localhost and their URLs printed; the command then runs until interrupted
+(Ctrl-C).  --pose takes revolute joint angles in degrees, e.g.
+--pose leftThigh_hip=60 leftShin_knee=40 (the control page shows the current
+configuration in this form).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import signal
+import sys
+import time
+
+from ..cli import UsageError
+from ..robot import Robot
+from ._common import add_spec_argument, read_model
+
+NAME = "view"
+HELP = "show a model in meshcat with joint sliders, or write --html / --png pictures"
+
+
+def _size(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if not m or not (16 <= int(m[1]) <= 8192 and 16 <= int(m[2]) <= 8192):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT between 16 and 8192 pixels, not '{text}'")
+    return int(m[1]), int(m[2])
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..viewer.scene import VIEWS
+
+    add_spec_argument(p)
+    p.add_argument("--pose", nargs="+", action="extend", default=[], metavar="JOINT=DEG",
+                   help="revolute joint angles in degrees (default: the spec's rest pose)")
+    p.add_argument("--html", metavar="OUT.html", help="write a standalone page (opens without a server)")
+    p.add_argument("--png", metavar="OUT.png", help="write a picture (headless Chromium)")
+    p.add_argument("--size", type=_size, default=(800, 800), metavar="WxH",
+                   help="picture size for --png (default 800x800)")
+    p.add_argument("--camera", choices=tuple(VIEWS), default="front",
+                   help="front (along +z, y up), side (along -x), top (down -y) or iso (default: front)")
+    p.add_argument("--root", choices=("spec", "free"), default="spec",
+                   help="'free': replace the joint to the inertial frame by a floating base")
+    p.add_argument("--system", help="which rigidBodySystem, if the spec has several")
+    p.add_argument("--no-serve", action="store_true", help="only write --html/--png, start no server")
+    p.add_argument("--port", type=int, default=0, help="port of the joint-control page (default: any free port)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..viewer import JointControl, PoseError, RobotView, parse_pose
+
+    if args.no_serve and not (args.html or args.png):
+        raise UsageError("--no-serve needs --html or --png (there is nothing else to do)")
+    spec = read_model(args.spec)
+    robot = Robot(spec, spec.system(args.system), args.root)
+    try:
+        q = parse_pose(robot, args.pose or None)
+    except PoseError as err:
+        raise UsageError(f"--pose: {err}") from None
+    width, height = args.size
+    aspect = width / height if args.png else 16 / 10
+    view = RobotView(robot, q, camera=args.camera, aspect=aspect, serve=not args.no_serve)
+    control = None
+    try:
+        if args.html:
+            print(f"wrote {view.write_html(args.html)}")
+        if args.png:
+            print(f"wrote {view.write_png(args.png, width, height)}")
+        if args.no_serve:
+            return 0
+        if args.png:
+            view.camera(args.camera, 16 / 10)
+        control = JointControl(robot, view, port=args.port)
+        print(f"meshcat viewer:  {view.url}")
+        print(f"joint control:   {control.url}")
+        print("press Ctrl-C to stop", flush=True)
+        _serve_until_interrupted()
+        return 0
+    finally:
+        if control is not None:
+            control.close()
+        view.close()
+
+
+def _serve_until_interrupted() -> None:
+    def on_term(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        print("stopped", file=sys.stderr)
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -1,0 +1,366 @@
+"""Interactive joint control (thesis §3.2.3, §4.1: "model configurations were generated
+by interactively manipulating joint angles with the graphical interface").
+
+:class:`JointControl` serves a small page (Python's ``http.server`` in a thread)
+with one slider per revolute joint, the meshcat viewer in an ``<iframe>``, a
+reset-to-rest button, camera buttons and the configuration as a ``--pose``
+string.  Slider moves POST to the server, which updates :attr:`JointControl.q`
+and sends one ``set_transform`` per body to meshcat (no geometry upload).
+
+HTTP interface (JSON in, JSON out; errors are ``400 {"error": message}``):
+
+* ``GET /``        the page (``/?pose=name=deg,name=deg`` moves those sliders on load)
+* ``GET /state``   ``{"joints": [{"name", "deg", "min", "max"}], "pose", "meshcat_url", "updates"}``
+* ``POST /joint``  ``{"name": joint, "deg": angle}``
+* ``POST /pose``   ``{"pose": "name=deg name=deg ..."}``
+* ``POST /reset``  back to the rest pose
+* ``POST /camera`` ``{"view": "front" | "side" | "top" | "iso"}`` re-frames the current pose
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import threading
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import meshcat
+import numpy as np
+
+from ..errors import Kms2pinError
+from ..robot import Robot
+from .errors import PoseError, ViewerError
+from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints, wrap_deg
+from .robot_view import RobotView
+
+MAX_BODY = 64 * 1024
+
+
+class JointControl:
+    """Sliders for ``robot``'s revolute joints, driving a meshcat scene.
+
+    Args:
+        robot: the compiled robot.
+        vis: a :class:`RobotView` or a meshcat Visualizer with a server (the robot
+            is drawn into it); None starts a new meshcat server, owned and
+            stopped by :meth:`close`.
+        q: initial configuration (default rest).
+        host, port: where the control page listens (port 0: any free port).
+
+    Attributes: :attr:`url` (the control page), :attr:`meshcat_url`, :attr:`q`,
+    :attr:`transform_log` (every ``(path, 4x4)`` sent to meshcat).
+    """
+
+    def __init__(self, robot: Robot, vis: RobotView | meshcat.Visualizer | None = None, q=None, *,
+                 camera: str = "front", host: str = "127.0.0.1", port: int = 0):
+        self.robot = robot
+        self.joints = revolute_joints(robot)
+        self._by_name = {j.name: j for j in self.joints}
+        self._lock = threading.RLock()
+        self.updates = 0
+        if isinstance(vis, RobotView):
+            self.view, self._owns_view = vis, False
+            if q is not None:
+                self.view.set_configuration(q)
+        else:
+            self.view = RobotView(robot, q, vis, camera=camera, aspect=16 / 10, serve=vis is None)
+            self._owns_view = vis is None
+        self.vis = self.view.vis
+        self._rest = np.array(robot.q_rest, dtype=float)
+        try:
+            self._httpd = ThreadingHTTPServer((host, port), _handler_for(self))
+        except OSError as err:
+            self._close_view()
+            raise ViewerError(f"cannot serve the control page on {host}:{port}: {err.strerror or err}") from None
+        self._httpd.daemon_threads = True
+        self._thread = threading.Thread(target=self._httpd.serve_forever, name="kms2pin-joint-control",
+                                        kwargs={"poll_interval": 0.1}, daemon=True)
+        self._thread.start()
+        self._closed = False
+
+    # ------------------------------------------------------------------ state
+    @property
+    def url(self) -> str:
+        host, port = self._httpd.server_address[:2]
+        return f"http://{host}:{port}/"
+
+    @property
+    def meshcat_url(self) -> str | None:
+        return self.view.url
+
+    @property
+    def q(self) -> np.ndarray:
+        with self._lock:
+            return self.view.q
+
+    @property
+    def transform_log(self) -> list[tuple[str, np.ndarray]]:
+        return self.view.drawing.transform_log
+
+    def angles_deg(self) -> dict[str, float]:
+        return joint_angles_deg(self.robot, self.q)
+
+    def pose(self) -> str:
+        return pose_string(self.robot, self.q)
+
+    def state(self) -> dict:
+        with self._lock:
+            angles = joint_angles_deg(self.robot, self.view.q)
+            return {
+                "model": self.robot.system.name,
+                "joints": [{"name": j.name, "deg": angles[j.name], "min": j.lower_deg, "max": j.upper_deg}
+                           for j in self.joints],
+                "pose": pose_string(self.robot, self.view.q),
+                "meshcat_url": self.meshcat_url,
+                "updates": self.updates,
+            }
+
+    # ------------------------------------------------------------------ changes
+    def _apply(self, q: np.ndarray) -> None:
+        with self._lock:
+            self.view.set_configuration(q)
+            self.updates += 1
+
+    def set_joint(self, name: str, deg: float) -> np.ndarray:
+        """Set one revolute joint (degrees, wrapped into [-180, 180]) and redraw."""
+        try:
+            deg = float(deg)
+        except (TypeError, ValueError):
+            raise PoseError(f"angle of joint '{name}' is not a number: {deg!r}") from None
+        if not math.isfinite(deg):
+            raise PoseError(f"angle of joint '{name}' must be finite, not {deg!r}")
+        with self._lock:
+            q = parse_pose(self.robot, f"{name}={wrap_deg(deg)!r}", self.view.q)
+            self._apply(q)
+            return q.copy()
+
+    def set_pose(self, pose: str) -> np.ndarray:
+        """Apply a ``--pose`` string (``name=deg ...``) to the current configuration."""
+        with self._lock:
+            q = parse_pose(self.robot, pose, self.view.q)
+            self._apply(q)
+            return q.copy()
+
+    def set_configuration(self, q) -> None:
+        self._apply(self.robot._check_q(q).copy())
+
+    def reset(self) -> np.ndarray:
+        """Back to the rest pose."""
+        self._apply(self._rest.copy())
+        return self._rest.copy()
+
+    def camera(self, view: str) -> None:
+        with self._lock:
+            self.view.camera(view)
+
+    # ------------------------------------------------------------------ lifetime
+    def _close_view(self) -> None:
+        if self._owns_view:
+            self.view.close()
+
+    def close(self) -> None:
+        """Stop the control page (and the meshcat server if this control started it)."""
+        if getattr(self, "_closed", True):
+            return
+        self._closed = True
+        self._httpd.shutdown()
+        self._httpd.server_close()
+        self._thread.join(timeout=5)
+        self._close_view()
+
+    def __enter__(self) -> JointControl:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ page
+    def page(self) -> str:
+        rows = []
+        for j in self.joints:
+            n = html.escape(j.name)
+            rows.append(
+                f'<div class="joint"><label for="j-{n}">{n} <span class="range">[{j.lower_deg:g}&deg;, '
+                f'{j.upper_deg:g}&deg;]</span></label>'
+                f'<div class="row"><input type="range" id="j-{n}" data-joint="{n}" min="{j.lower_deg:g}" '
+                f'max="{j.upper_deg:g}" step="0.5" value="0"><output id="o-{n}">0</output></div></div>'
+            )
+        meshcat_url = self.meshcat_url or ""
+        frame = (f'<iframe id="viewer" src="{html.escape(meshcat_url)}"></iframe>' if meshcat_url
+                 else '<div id="viewer">(no meshcat server)</div>')
+        title = html.escape(f"kms2pin: {self.robot.system.name}")
+        return _PAGE.replace("%TITLE%", title).replace("%ROWS%", "\n".join(rows)).replace("%FRAME%", frame) \
+            .replace("%MESHCAT%", html.escape(meshcat_url))
+
+
+def _handler_for(control: JointControl):
+    class Handler(BaseHTTPRequestHandler):
+        server_version = "kms2pin-joint-control"
+
+        def log_message(self, fmt, *args):  # quiet
+            pass
+
+        def _send(self, status: int, body: bytes, ctype: str) -> None:
+            self.send_response(status)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(body)
+
+        def _json(self, status: int, obj) -> None:
+            self._send(status, json.dumps(obj).encode("utf-8"), "application/json")
+
+        def do_GET(self):  # noqa: N802
+            path = self.path.split("?", 1)[0]
+            if path in ("/", "/index.html"):
+                self._send(200, control.page().encode("utf-8"), "text/html; charset=utf-8")
+            elif path == "/state":
+                self._json(200, control.state())
+            else:
+                self._json(404, {"error": f"no such page: {path}"})
+
+        def do_POST(self):  # noqa: N802
+            path = self.path.split("?", 1)[0]
+            try:
+                n = int(self.headers.get("Content-Length") or 0)
+                if n > MAX_BODY:
+                    raise ValueError("request too large")
+                raw = self.rfile.read(n) if n else b""
+                data = json.loads(raw.decode("utf-8")) if raw.strip() else {}
+                if not isinstance(data, dict):
+                    raise ValueError("expected a JSON object")
+            except (ValueError, UnicodeDecodeError) as err:
+                self._json(400, {"error": f"bad request: {err}"})
+                return
+            try:
+                if path == "/joint":
+                    if "name" not in data or "deg" not in data:
+                        raise PoseError('expected {"name": joint, "deg": angle}')
+                    control.set_joint(str(data["name"]), data["deg"])
+                elif path == "/pose":
+                    control.set_pose(str(data.get("pose", "")))
+                elif path == "/reset":
+                    control.reset()
+                elif path == "/camera":
+                    control.camera(str(data.get("view", "front")))
+                else:
+                    self._json(HTTPStatus.NOT_FOUND, {"error": f"no such action: {path}"})
+                    return
+            except Kms2pinError as err:
+                self._json(400, {"error": str(err)})
+                return
+            self._json(200, control.state())
+
+    return Handler
+
+
+_PAGE = r"""<!DOCTYPE html>
+<html>
+<head>
+<meta charset="utf-8">
+<title>%TITLE%</title>
+<style>
+  html, body { margin: 0; height: 100%; font: 13px/1.35 system-ui, sans-serif; }
+  #wrap { display: flex; height: 100vh; }
+  #panel { width: 330px; overflow-y: auto; padding: 10px 12px; box-sizing: border-box; border-right: 1px solid #ccc; }
+  #viewer { flex: 1; border: none; height: 100%; }
+  h1 { font-size: 15px; margin: 0 0 8px; }
+  .joint { margin: 6px 0; }
+  .joint label { display: block; font-family: monospace; }
+  .range { color: #777; }
+  .row { display: flex; align-items: center; gap: 6px; }
+  .row input { flex: 1; }
+  .row output { width: 52px; text-align: right; font-family: monospace; }
+  textarea { width: 100%; height: 92px; font-family: monospace; font-size: 12px; box-sizing: border-box; }
+  button { margin: 2px 2px 2px 0; }
+  #error { color: #b00; white-space: pre-wrap; }
+</style>
+</head>
+<body>
+<div id="wrap">
+<div id="panel">
+  <h1>%TITLE%</h1>
+  <div>
+    <button id="reset">reset to rest</button>
+    camera:
+    <button class="cam" data-view="front">front</button><button class="cam" data-view="side">side</button><button class="cam" data-view="top">top</button><button class="cam" data-view="iso">iso</button>
+  </div>
+  %ROWS%
+  <p>Configuration (<code>--pose</code>; edit and apply, or paste on the command line):</p>
+  <textarea id="pose" spellcheck="false"></textarea>
+  <button id="apply">apply pose</button> <button id="copy">copy</button>
+  <div id="error"></div>
+  <p><a href="%MESHCAT%" target="_blank">open the meshcat viewer alone</a></p>
+</div>
+%FRAME%
+</div>
+<script>
+"use strict";
+const sliders = Array.from(document.querySelectorAll("input[type=range]"));
+const poseBox = document.getElementById("pose");
+const errorBox = document.getElementById("error");
+let inFlight = false, pending = null;
+
+function fmt(x) { return (Math.round(x * 10) / 10).toString(); }
+
+function show(state) {
+  for (const j of state.joints) {
+    const s = document.getElementById("j-" + j.name);
+    if (s && document.activeElement !== s) s.value = j.deg;
+    const o = document.getElementById("o-" + j.name);
+    if (o) o.textContent = fmt(j.deg);
+  }
+  if (document.activeElement !== poseBox) poseBox.value = state.pose;
+}
+
+async function post(path, body) {
+  const res = await fetch(path, {method: "POST", headers: {"Content-Type": "application/json"},
+                                 body: JSON.stringify(body || {})});
+  const data = await res.json();
+  if (!res.ok) { errorBox.textContent = data.error || res.statusText; return null; }
+  errorBox.textContent = "";
+  show(data);
+  return data;
+}
+
+async function pump() {
+  if (inFlight || pending === null) return;
+  const job = pending; pending = null; inFlight = true;
+  try { await post("/joint", job); } catch (e) { errorBox.textContent = String(e); }
+  inFlight = false;
+  pump();
+}
+
+for (const s of sliders) {
+  s.addEventListener("input", () => {
+    document.getElementById("o-" + s.dataset.joint).textContent = fmt(parseFloat(s.value));
+    pending = {name: s.dataset.joint, deg: parseFloat(s.value)};
+    pump();
+  });
+}
+document.getElementById("reset").addEventListener("click", () => post("/reset"));
+document.getElementById("apply").addEventListener("click", () => { poseBox.blur(); post("/pose", {pose: poseBox.value}); });
+document.getElementById("copy").addEventListener("click", () => { poseBox.select(); document.execCommand("copy"); });
+for (const b of document.querySelectorAll("button.cam")) {
+  b.addEventListener("click", () => post("/camera", {view: b.dataset.view}));
+}
+// /?pose=name=deg,name=deg moves those sliders as a user would (input events), e.g. a shared link
+function slidersFromQuery() {
+  const pose = new URLSearchParams(location.search).get("pose");
+  if (!pose) return;
+  for (const item of pose.split(/[\s,;]+/).filter(x => x)) {
+    const [name, deg] = item.split("=");
+    const s = document.getElementById("j-" + name);
+    if (!s || isNaN(parseFloat(deg))) { errorBox.textContent = "?pose: cannot set '" + item + "'"; continue; }
+    s.value = deg;
+    s.dispatchEvent(new Event("input"));
+  }
+}
+fetch("/state").then(r => r.json()).then(state => { show(state); slidersFromQuery(); });
+</script>
+</body>
+</html>
+"""

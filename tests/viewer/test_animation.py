@@ -1,0 +1,52 @@
+"""Trajectories as meshcat animations inside the standalone page."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kms2pin.viewer import ViewerError, animate, write_animation_html
+from kms2pin.viewer.scene import ROOT
+
+from ._util import joint_q, page_commands
+
+
+def _trajectory(robot, T=12):
+    traj = np.repeat(robot.q_rest[None], T, axis=0)
+    traj[:, joint_q(robot, "leftThigh_hip")] += np.linspace(0.0, 1.0, T)
+    return traj
+
+
+def test_animation_html_holds_every_frame(lowerbody, tmp_path):
+    traj = _trajectory(lowerbody)
+    path = write_animation_html(lowerbody, traj, 24, tmp_path / "walk.html")
+    cmds = page_commands(path.read_text())
+    (anim,) = [c for c in cmds if c["type"] == "set_animation"]
+    assert cmds[-1] is anim, "the animation comes after the objects it animates"
+    clips = {a["path"]: a["clip"] for a in anim["animations"]}
+    assert set(clips) == {f"/meshcat/{ROOT}/model/bodies/{b}" for b in lowerbody.bodies}
+    shin = clips[f"/meshcat/{ROOT}/model/bodies/leftShin"]
+    assert shin["fps"] == 24
+    pos = {t["name"]: t for t in shin["tracks"]}[".position"]
+    assert [k["time"] for k in pos["keys"]] == list(range(len(traj)))
+    for i in (0, len(traj) - 1):
+        expected = lowerbody.body_poses(traj[i])[lowerbody.index("leftShin")].translation
+        np.testing.assert_allclose(pos["keys"][i]["value"], expected)
+    pelvis = {t["name"]: t for t in clips[f"/meshcat/{ROOT}/model/bodies/pelvis"]["tracks"]}[".position"]
+    assert np.ptp([k["value"] for k in pelvis["keys"]], axis=0).max() < 1e-12  # the pelvis does not move
+
+
+def test_animate_into_a_given_visualizer(lowerbody):
+    from kms2pin.viewer import new_visualizer
+
+    vis = new_visualizer(serve=False)
+    assert animate(lowerbody, _trajectory(lowerbody, 3), 10, vis) is vis
+    assert any(c["type"] == "set_animation" for c in vis.window.sent)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((0, 7)), np.zeros((3, 6)), np.full((2, 7), np.nan)])
+def test_bad_trajectories(lowerbody, bad):
+    with pytest.raises(ViewerError):
+        animate(lowerbody, bad, 10)
+    with pytest.raises(ViewerError, match="fps"):
+        animate(lowerbody, np.zeros((2, 7)), 0)
