@@ -1,0 +1,78 @@
+"""ECM tracking benchmark: synthetic sequences (5 % noise, 10 % body-size mismatch,
+320x240) tracked from the rest pose; accuracy and speed (one core).
+
+    .venv/bin/python benchmarks/ecm.py [--frames 300] [--only lowerbody-2cam,...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from kms2pin.ecm.camera import Camera  # noqa: E402
+from kms2pin.ecm.evaluate import evaluate  # noqa: E402
+from kms2pin.ecm.motions import make_motion  # noqa: E402
+from kms2pin.ecm.synth import synthesize  # noqa: E402
+from kms2pin.ecm.tracker import Tracker, Trajectory  # noqa: E402
+from kms2pin.robot import load  # noqa: E402
+
+SPECS = Path(__file__).resolve().parents[1] / "specs"
+
+
+def cameras(robot, n):
+    c = robot.q_rest[:3]
+    cams = [Camera.default(), Camera.look_at(position=[8, 0, 8], target=c),
+            Camera.look_at(position=[-8, 2, 8], target=c), Camera.look_at(position=[0, 6, 16], target=c)]
+    return cams[:n]
+
+
+CASES = {
+    "lowerbody-2cam": ("lowerbody", "walk", 2),
+    "lowerbody-1cam": ("lowerbody", "walk", 1),
+    "fullbody-1cam": ("fullbody", "walk", 1),
+    "fullbody-4cam": ("fullbody", "walk", 4),
+    "jplhand-2cam": ("jplhand", "random", 2),
+}
+
+
+def run_case(name, frames, noise, mismatch):
+    spec, motion_name, ncam = CASES[name]
+    robot = load(SPECS / f"{spec}.kms", root="free")
+    rng = np.random.default_rng(0)
+    motion = make_motion(robot, motion_name, frames, rng)
+    cams = cameras(robot, ncam)
+    data = [m for _, m in synthesize(robot, motion, cams, noise=noise, size_mismatch=mismatch, rng=rng)]
+    tr = Tracker(robot, cams)
+    t0 = time.perf_counter()
+    res = [tr.step(m, source=f"frame {k}") for k, m in enumerate(data)]
+    wall = time.perf_counter() - t0
+    rep = evaluate(robot, Trajectory(robot, np.array([r.q for r in res]), res), Trajectory(robot, motion))
+    split = {k: sum(r.timings[k] for r in res) for k in ("e_step", "m_step", "static_update")}
+    iters = np.mean([r.iterations for r in res])
+    print(f"{name:16s} {frames:4d} fr | centre err {rep['mean_centre_error_pct']:.3f} % | rev RMSE "
+          f"{rep['revolute_rmse_deg']:.2f} deg | worst {rep['worst_frame_error_pct']:.3f} % (frame "
+          f"{rep['worst_frame']}) | last/first {rep['first_vs_last_ratio']:.2f} | {frames / wall:.1f} fr/s, "
+          f"{iters:.1f} it/fr | E {split['e_step'] / wall:.0%} M {split['m_step'] / wall:.0%} "
+          f"S {split['static_update'] / wall:.0%}", flush=True)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--noise", type=float, default=0.05)
+    p.add_argument("--size-mismatch", type=float, default=0.10)
+    p.add_argument("--only", help="comma-separated cases: " + ", ".join(CASES))
+    a = p.parse_args()
+    for name in (a.only.split(",") if a.only else CASES):
+        run_case(name, a.frames, a.noise, a.size_mismatch)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,57 @@
+"""Compare a `kms2pin track` output folder with the true motion (e.g. truth.csv of
+`kms2pin synth`): per-joint angle RMSE (degrees), mean body-centre error as a
+percentage of the model height, and the worst frame."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..ecm.evaluate import evaluate
+from ..ecm.tracker import Trajectory
+from ..errors import InputDataError
+from ..robot import Robot
+from ._common import read_model
+
+NAME = "evaluate"
+HELP = "accuracy of a track output against the true trajectory"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("out", metavar="OUT", help="folder written by kms2pin track")
+    p.add_argument("truth", metavar="TRUTH.csv", help="true trajectory (truth.csv of kms2pin synth)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if not out.is_dir():
+        raise FileNotFoundError(2, "no such folder", str(out))
+    for name in ("meta.json", "model.kms", "trajectory.csv"):
+        if not (out / name).is_file():
+            raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
+    if not Path(args.truth).is_file():
+        raise FileNotFoundError(2, "no such file", args.truth)
+    try:
+        meta = json.loads((out / "meta.json").read_text())
+    except ValueError as err:
+        raise InputDataError(f"{out / 'meta.json'}: not valid JSON ({err})") from None
+    spec = read_model(str(out / "model.kms"))
+    robot = Robot(spec, spec.system(meta.get("system")), meta.get("root", "free"))
+    tracked = Trajectory.from_csv(robot, out / "trajectory.csv")
+    truth = Trajectory.from_csv(robot, args.truth)
+    first = int(meta.get("first_frame", 0))
+    truth = Trajectory(robot, truth.q[first:])
+    rep = evaluate(robot, tracked, truth)
+    if args.json:
+        print(json.dumps(rep, indent=2))
+        return 0
+    print(f"{rep['frames']} frames; model height {robot.height:.4g}")
+    for name, v in rep["joint_rmse_deg"].items():
+        print(f"  {name:30s} {v:8.2f} deg RMSE")
+    print(f"revolute RMSE: {rep['revolute_rmse_deg']:.2f} deg")
+    print(f"mean body-centre error: {rep['mean_centre_error_pct']:.3f} % of height")
+    print(f"worst frame: {rep['worst_frame']} ({rep['worst_frame_error_pct']:.3f} %)")
+    print(f"last-30 / first-30 error ratio: {rep['first_vs_last_ratio']:.2f}")
+    return 0

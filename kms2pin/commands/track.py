@@ -1,0 +1,214 @@
+"""Track a model through silhouette masks with the ECM algorithm (thesis §2.1.2).
+
+Reads DIR/camK/frame_NNNNN.png (or DIR/frame_*.png / DIR/*.png for one camera)
+and the cameras from --camera files or DIR/cameras.json.  Writes to OUT:
+trajectory.csv (joint angles in degrees, one row per frame, appended as it
+goes), poses.npz (body poses; also written on interruption), overlay.mp4
+(projected inner/outer ellipses over the masks), animation.html (if the viewer
+is available), model.kms and meta.json (for `kms2pin evaluate`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..ecm.camera import Camera
+from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_conic
+from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
+from ..errors import InputDataError, Kms2pinError
+from ..robot import Robot
+from ._common import add_spec_argument, read_model
+
+NAME = "track"
+HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4"
+
+_NUM = re.compile(r"(\d+)(?=\.png$)", re.IGNORECASE)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_spec_argument(p)
+    p.add_argument("--masks", required=True, metavar="DIR", help="mask folder (camK/ sub-folders or PNGs)")
+    p.add_argument("--camera", action="append", metavar="CAM.json",
+                   help="camera file, once per camera in order (default: DIR/cameras.json)")
+    p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
+    p.add_argument("--init", metavar="POSE.csv", help="initial pose: first row of a trajectory CSV")
+    p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
+    p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+
+
+def _frames_in(folder: Path) -> dict[int, Path]:
+    frames: dict[int, Path] = {}
+    for path in sorted(folder.glob("*.png")) + sorted(folder.glob("*.PNG")):
+        m = _NUM.search(path.name)
+        if m is None:
+            raise InputDataError(f"{path}: cannot tell the frame number from the name (expected frame_NNNNN.png)")
+        k = int(m.group(1))
+        if k in frames and frames[k] != path:
+            raise InputDataError(f"{path}: frame {k} appears twice (also {frames[k].name})")
+        frames[k] = path
+    return frames
+
+
+def find_frames(masks: Path, n_cameras: int) -> tuple[list[int], list[dict[int, Path]]]:
+    """Frame numbers and, per camera, frame -> file; errors name gaps and missing files."""
+    if not masks.exists():
+        raise FileNotFoundError(2, "no such folder", str(masks))
+    if not masks.is_dir():
+        raise InputDataError(f"{masks}: --masks must be a folder")
+    cam_dirs = [masks / f"cam{c}" for c in range(n_cameras)]
+    if all(d.is_dir() for d in cam_dirs):
+        per_cam = [_frames_in(d) for d in cam_dirs]
+    elif n_cameras == 1:
+        per_cam = [_frames_in(masks)]
+    else:
+        missing = [str(d) for d in cam_dirs if not d.is_dir()]
+        raise InputDataError(f"{masks}: {n_cameras} cameras but no mask folder {', '.join(missing)}")
+    where = cam_dirs if len(per_cam) > 1 or cam_dirs[0].is_dir() else [masks]
+    for d, frames in zip(where, per_cam):
+        if not frames:
+            raise InputDataError(f"{d}: no PNG masks found")
+    numbers = sorted(per_cam[0])
+    for d, frames in zip(where, per_cam):
+        nums = sorted(frames)
+        gaps = sorted(set(range(nums[0], nums[-1] + 1)) - set(nums))
+        if gaps:
+            shown = ", ".join(map(str, gaps[:10])) + (" ..." if len(gaps) > 10 else "")
+            raise InputDataError(f"{d}: missing frame(s) {shown} (frames {nums[0]}..{nums[-1]})")
+        if nums != numbers:
+            other = sorted(set(nums) ^ set(numbers))
+            raise InputDataError(f"{d}: frames differ from {where[0]}: frame(s) {', '.join(map(str, other[:10]))}")
+    return numbers, per_cam
+
+
+def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputDataError(f"{path}: frame {frame}: cannot read the image (not a PNG, or damaged)")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
+    if img.shape != camera.shape:
+        raise InputDataError(
+            f"{path}: frame {frame}: mask is {img.shape[1]}x{img.shape[0]} but camera "
+            f"{camera.name or ''} is {camera.width}x{camera.height}".replace("camera  is", "camera is")
+        )
+    scale = 255 if img.dtype == np.uint8 else np.iinfo(img.dtype).max if img.dtype.kind in "ui" else 1
+    vals = np.unique(img)
+    if not np.all(np.isin(vals, (0, scale))) and not np.all(np.isin(vals, (0, 1))):
+        print(f"note: {path}: frame {frame}: not a binary mask; thresholded at 127", file=sys.stderr)
+        return img > 127 * scale / 255
+    return img > 0
+
+
+def _overlay(robot: Robot, cameras, masks, q) -> np.ndarray:
+    poses = robot.body_poses(q)
+    tiles = []
+    for cam, m in zip(cameras, masks):
+        img = cv2.cvtColor(m.astype(np.uint8) * 160, cv2.COLOR_GRAY2BGR)
+        for P, b in zip(poses, robot.bodies):
+            for axes, colour in ((robot.outer(b), (0, 200, 255)), (robot.inner(b), (0, 255, 0))):
+                try:
+                    e = ellipse_parameters(ellipsoid_conic(cam, P, axes))
+                except (ProjectionError, np.linalg.LinAlgError):
+                    continue
+                if not np.all(np.isfinite(e.centre)) or np.max(e.semi_axes) > 1e4:
+                    continue
+                cv2.ellipse(img, (tuple(map(float, e.centre)), tuple(map(float, 2 * e.semi_axes)), e.angle_deg),
+                            colour, 1, cv2.LINE_AA)
+        tiles.append(img)
+    h = max(t.shape[0] for t in tiles)
+    tiles = [cv2.copyMakeBorder(t, 0, h - t.shape[0], 0, 0, cv2.BORDER_CONSTANT) for t in tiles]
+    return np.hstack(tiles)
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = read_model(args.spec)
+    robot = Robot(spec, spec.system(args.system), args.root)
+    masks_dir = Path(args.masks)
+    if args.camera:
+        cameras = [Camera.from_json(c) for c in args.camera]
+    elif (masks_dir / "cameras.json").is_file():
+        cameras = Camera.list_from_json(masks_dir / "cameras.json")
+    else:
+        raise InputDataError(f"{masks_dir}: no cameras.json; give the cameras with --camera CAM.json")
+    numbers, per_cam = find_frames(masks_dir, len(cameras))
+    q0 = None
+    if args.init:
+        if not Path(args.init).exists():
+            raise FileNotFoundError(2, "no such file", args.init)
+        init = Trajectory.from_csv(robot, args.init)
+        if len(init) == 0:
+            raise InputDataError(f"{args.init}: no pose rows")
+        q0 = init.q[0]
+    tracker = Tracker(robot, cameras, q0=q0)
+    out = Path(args.output)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(args.spec, out / "model.kms")
+        (out / "meta.json").write_text(json.dumps({
+            "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
+            "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
+        }, indent=2) + "\n")
+        Camera.list_to_json(cameras, out / "cameras.json")
+    except OSError as err:
+        raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
+
+    video = None
+    qs, results = [], []
+    iterator = numbers
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(numbers, unit="frame", desc="tracking")
+    interrupted = False
+    try:
+        with TrajectoryCsvWriter(robot, out / "trajectory.csv") as csv_out:
+            for k, frame in enumerate(iterator):
+                masks = [read_mask(pc[frame], frame, cam) for pc, cam in zip(per_cam, cameras)]
+                names = ", ".join(str(pc[frame]) for pc in per_cam)
+                r = tracker.step(masks, source=f"{names}: frame {frame}")
+                if "empty mask" in r.flags:
+                    print(f"note: frame {frame}: empty mask ({names}); pose kept from the previous frame",
+                          file=sys.stderr)
+                csv_out.write(frame, r)
+                qs.append(r.q)
+                results.append(r)
+                if not args.no_video:
+                    img = _overlay(robot, cameras, masks, r.q)
+                    if video is None:
+                        video = cv2.VideoWriter(str(out / "overlay.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                                                args.fps, (img.shape[1], img.shape[0]))
+                    video.write(img)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if video is not None:
+            video.release()
+        if qs:
+            Trajectory(robot, np.array(qs), results).to_npz(out / "poses.npz")
+    if interrupted:
+        print(f"interrupted after {len(qs)} frame(s); outputs in {out} are complete up to there", file=sys.stderr)
+        raise KeyboardInterrupt
+    try:
+        from ..viewer import write_animation_html
+    except Exception as err:  # noqa: BLE001 - the viewer is optional
+        print(f"note: animation.html skipped (viewer unavailable: {err})", file=sys.stderr)
+    else:
+        try:
+            write_animation_html(robot, np.array(qs), args.fps, out / "animation.html")
+        except Exception as err:  # noqa: BLE001
+            print(f"note: animation.html skipped ({err})", file=sys.stderr)
+    fits = np.array([r.fit for r in results])
+    print(f"{out}: {len(qs)} frames tracked; mean fit (IoU) {fits.mean():.3f}, worst {fits.min():.3f} "
+          f"(frame {numbers[int(fits.argmin())]})")
+    return 0

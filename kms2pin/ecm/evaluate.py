@@ -1,0 +1,45 @@
+"""Accuracy of a tracked trajectory against the truth (``kms2pin evaluate``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from ..errors import InputDataError
+from ..robot import Robot
+from .tracker import Trajectory
+
+
+def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory) -> dict:
+    """Per-joint angle RMSE (deg), body-centre error (% of height) overall, per frame and worst.
+
+    Frames are compared in order; the shorter trajectory sets the count.
+    """
+    n = min(len(tracked), len(truth))
+    if n == 0:
+        raise InputDataError("nothing to evaluate: a trajectory is empty")
+    model = robot.model
+    d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)])
+    joints = {}
+    for jid in range(1, model.njoints):
+        j = model.joints[jid]
+        if j.nq == 1:
+            joints[model.names[jid]] = float(np.degrees(np.sqrt(np.mean(d[:, j.idx_v] ** 2))))
+    per_frame = np.empty(n)
+    for k in range(n):
+        a = robot.maximal_coordinates(tracked.q[k])[:, :3]
+        b = robot.maximal_coordinates(truth.q[k])[:, :3]
+        per_frame[k] = np.linalg.norm(a - b, axis=1).mean() / robot.height * 100
+    rev = np.array(list(joints.values()))
+    m = min(30, n)
+    head, tail = per_frame[:m].mean(), per_frame[-m:].mean()
+    return {
+        "frames": n,
+        "joint_rmse_deg": joints,
+        "revolute_rmse_deg": float(np.sqrt(np.mean(rev**2))) if len(rev) else 0.0,
+        "mean_centre_error_pct": float(per_frame.mean()),
+        "worst_frame": int(per_frame.argmax()),
+        "worst_frame_error_pct": float(per_frame.max()),
+        "first_vs_last_ratio": float(tail / head) if head > 0 else float("inf"),
+        "per_frame_centre_error_pct": per_frame.tolist(),
+    }

@@ -1,0 +1,489 @@
+"""ECM tracking (thesis §2.1.2): E-step, 3-D M-step per body, static update, per frame.
+
+Each frame starts from the previous result (or a constant-velocity prediction)
+and iterates E -> M -> constrain until the configuration stops changing:
+
+1. E-step (:func:`kms2pin.ecm.mstep.body_image` + the union in :meth:`Tracker.step`):
+   in every camera each body's sharp silhouette ``s_j`` is evaluated at the
+   current (kinematically valid) pose and every body learns how much of each
+   pixel the *others* explain, ``o_i = 1 - Π_{j≠i}(1 - s_j)`` (soft labels).
+2. M-step (:func:`kms2pin.ecm.mstep.fit_body`): each body's 6-DoF pose is refit
+   on its own to the mask, the others held: the intermediate bodies.
+3. Static update (:func:`kms2pin.static_update`): springs between primary and
+   intermediate bodies pull the configuration back to a valid one.  Every
+   coordinate of every body gets its own stiffness, read off the M-step's
+   Gauss-Newton matrix (the thesis: "k may be different for every coordinate of
+   every body ... to compensate for noise or ambiguities"): a body seen edge-on,
+   along the viewing ray, or mostly hidden has soft springs in the directions
+   the images do not fix, so the well-seen bodies carry it.  With the M-step's
+   own curvature as the springs, M-step + static update is close to one
+   Gauss-Newton step on the whole-body silhouette fit in joint space.
+
+The edge width ``δ`` of the sharp silhouettes is annealed from ``delta_start``
+to ``delta_final`` pixels over the first iterations of a frame (a wide edge
+for capture range, a narrow one for accuracy).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from ..errors import CameraError, InputDataError
+from ..robot import Robot
+from ..virtual_work import static_update
+from .camera import Camera
+from .mstep import BodyView, _geometry, body_image, fit_body
+from .projection import body_bbox
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One tracked frame.
+
+    Attributes:
+        q: configuration (Pinocchio ``q``).
+        body_poses: (n_bodies, 7) maximal coordinates [mu, theta0..3] at ``q``.
+        iterations: ECM iterations run.
+        fit: intersection over union of the model's inner silhouettes with the masks
+            (over all cameras).
+        converged: whether the configuration stopped changing within the limit.
+        flags: notes such as ``"empty mask"`` (pose kept from the previous frame).
+        timings: seconds spent in the E-step, M-step and static update.
+    """
+
+    q: np.ndarray
+    body_poses: np.ndarray
+    iterations: int
+    fit: float
+    converged: bool
+    flags: tuple[str, ...] = ()
+    timings: dict = field(default_factory=dict)
+
+
+class Trajectory:
+    """Tracked (or true) configurations over frames, with CSV/NPZ input and output.
+
+    The CSV has a ``frame`` column then one column per joint coordinate: revolute
+    joint angles in degrees named after the joint; a free-flyer root as
+    ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``.
+    """
+
+    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = ()):
+        self.robot = robot
+        self.q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
+        self.results = list(results)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    @staticmethod
+    def columns(robot: Robot) -> list[str]:
+        cols = []
+        for jid in range(1, robot.model.njoints):
+            j = robot.model.joints[jid]
+            name = robot.model.names[jid]
+            if j.nq == 7:
+                cols += ["root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw"]
+            elif j.nq == 1:
+                cols.append(name)
+            else:  # pragma: no cover - the compiler makes only these joints
+                cols += [f"{name}_{k}" for k in range(j.nq)]
+        return cols
+
+    def table(self) -> np.ndarray:
+        """(T, nq) with revolute angles in degrees (CSV units)."""
+        out = self.q.copy()
+        for jid in range(1, self.robot.model.njoints):
+            j = self.robot.model.joints[jid]
+            if j.nq == 1:
+                out[:, j.idx_q] = np.degrees(out[:, j.idx_q])
+        return out
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        extra = bool(self.results)
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["frame", *self.columns(self.robot), *(["fit", "flags"] if extra else [])])
+            for k, row in enumerate(self.table()):
+                tail = []
+                if extra:
+                    r = self.results[k]
+                    tail = [f"{r.fit:.4f}", ";".join(r.flags)]
+                w.writerow([k, *(f"{x:.10g}" for x in row), *tail])
+
+    def to_npz(self, path: str | os.PathLike) -> None:
+        """Body poses (T, n_bodies, 7) maximal coordinates, q (T, nq), body and joint names."""
+        poses = np.array([self.robot.maximal_coordinates(q) for q in self.q])
+        np.savez_compressed(
+            path,
+            q=self.q,
+            body_poses=poses,
+            bodies=np.array(self.robot.bodies),
+            joint_names=np.array(self.robot.joint_names),
+            fit=np.array([r.fit for r in self.results]) if self.results else np.zeros(0),
+        )
+
+    @classmethod
+    def from_csv(cls, robot: Robot, path: str | os.PathLike) -> Trajectory:
+        """Read a trajectory CSV (as written by :meth:`to_csv` or ``kms2pin synth``)."""
+        try:
+            with open(path, newline="") as f:
+                rows = list(csv.reader(f))
+        except OSError as err:
+            raise InputDataError(f"{path}: cannot read: {err.strerror}") from None
+        if not rows:
+            raise InputDataError(f"{path}: empty trajectory file")
+        header = rows[0]
+        cols = cls.columns(robot)
+        missing = [c for c in cols if c not in header]
+        if missing:
+            raise InputDataError(
+                f"{path}: missing columns {', '.join(missing)} for '{robot.system.name}' "
+                f"(root={robot.root!r}); the file has {', '.join(header)}"
+            )
+        idx = [header.index(c) for c in cols]
+        q = np.empty((len(rows) - 1, robot.nq))
+        for k, row in enumerate(rows[1:]):
+            try:
+                q[k] = [float(row[i]) for i in idx]
+            except (ValueError, IndexError):
+                raise InputDataError(f"{path}:{k + 2}: malformed row") from None
+        for jid in range(1, robot.model.njoints):
+            j = robot.model.joints[jid]
+            if j.nq == 1:
+                q[:, j.idx_q] = np.radians(q[:, j.idx_q])
+        return cls(robot, q)
+
+
+class TrajectoryCsvWriter:
+    """Appends one :class:`Trajectory` CSV row per frame (flushed), so a crash or an
+    interruption leaves a complete file up to the last finished frame."""
+
+    def __init__(self, robot: Robot, path: str | os.PathLike):
+        self.robot = robot
+        self._f = open(path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(["frame", *Trajectory.columns(robot), "fit", "flags"])
+        self._f.flush()
+
+    def write(self, frame: int, result: FrameResult) -> None:
+        row = Trajectory(self.robot, result.q).table()[0]
+        self._w.writerow([frame, *(f"{x:.10g}" for x in row), f"{result.fit:.4f}", ";".join(result.flags)])
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> TrajectoryCsvWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Diagonal spring stiffness on [mu, theta0..3] (7,) from a 6x6 Gauss-Newton matrix
+    in (world translation, world rotation vector): δθ = ½ E(θ) ω and ω = 2 E(θ)ᵀ δθ,
+    so the rotational energy ½ ωᵀ H_ωω ω is ½ δθᵀ (4 E H_ωω Eᵀ) δθ."""
+    w, x, y, z = theta
+    E = np.array([[-x, -y, -z], [w, z, -y], [-z, w, x], [y, -x, w]])  # [0, ω] ⊗ θ / ... (world ω)
+    Kth = 4.0 * E @ H[3:, 3:] @ E.T
+    return np.r_[np.diag(H[:3, :3]), np.diag(Kth)]
+
+
+class Tracker:
+    """ECM tracker for one robot seen by one or more cameras.
+
+    Args:
+        robot: the model (``root="free"`` for bodies that move around).
+        cameras: one :class:`Camera` per mask stream (or a single camera).
+        q0: starting configuration (default ``robot.q_rest``); every camera must see
+            part of the model there (else :class:`CameraError`).
+        max_iterations: ECM iterations per frame.
+        min_iterations: ECM iterations always run (the edge width reaches ``delta_final``
+            by then).
+        tol_deg: stop when no joint moves more than this (degrees; the root's
+            translation: this many hundredths of the model height per degree).
+        prediction: ``"constant_velocity"`` or ``"previous"``.
+        delta_start, delta_final: edge width of the sharp silhouettes (pixels), annealed
+            by halves from the first to the second within a frame.
+        m_iterations: Gauss-Newton iterations of each body's M-step.
+        damping: M-step damping towards the primary pose, relative to the data.
+        stiffness_floor: least spring stiffness, as a fraction of the strongest body's.
+        max_pixels: pixels per body and camera above which the M-step subsamples.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        cameras: Camera | Sequence[Camera],
+        *,
+        q0=None,
+        max_iterations: int = 8,
+        min_iterations: int = 3,
+        tol_deg: float = 0.05,
+        prediction: str = "constant_velocity",
+        delta_start: float = 3.0,
+        delta_final: float = 0.7,
+        m_iterations: int = 2,
+        damping: float = 1e-2,
+        stiffness_floor: float = 1e-2,
+        max_pixels: int = 1_000_000,
+        static: str = "full",
+        static_iterations: int = 3,
+    ):
+        if prediction not in ("constant_velocity", "previous"):
+            raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
+        self.robot = robot
+        self.cameras = [cameras] if isinstance(cameras, Camera) else list(cameras)
+        if not self.cameras:
+            raise ValueError("a tracker needs at least one camera")
+        self.max_iterations = max(1, int(max_iterations))
+        self.min_iterations = max(1, min(int(min_iterations), self.max_iterations))
+        self.tol = np.radians(tol_deg)
+        self.prediction = prediction
+        self.delta_start, self.delta_final = float(delta_start), float(delta_final)
+        self.m_iterations, self.damping = m_iterations, damping
+        self.stiffness_floor = stiffness_floor
+        self.max_pixels = max_pixels
+        if static not in ("full", "diagonal"):
+            raise ValueError(f"static must be 'full' or 'diagonal', not {static!r}")
+        self.static, self.static_iterations = static, static_iterations
+        self.inner = [robot.inner(b) for b in robot.bodies]
+        self.outer = [robot.outer(b) for b in robot.bodies]
+        self.q = np.array(robot.q_rest if q0 is None else q0, dtype=float)
+        if self.q.shape != (robot.nq,):
+            raise InputDataError(f"initial pose has {self.q.size} values but '{robot.system.name}' needs {robot.nq}")
+        self._prev: np.ndarray | None = None
+        self.frame = 0
+        self._root_dofs = 3 if robot.root == "free" else 0
+        for c, cam in enumerate(self.cameras):
+            if not self.visible_bodies(cameras=[cam]):
+                name = f" '{cam.name}'" if cam.name else ""
+                raise CameraError(
+                    f"camera {c}{name} does not see the model at the starting pose: no body of "
+                    f"'{robot.system.name}' falls in its {cam.width}x{cam.height} image (camera at "
+                    f"{np.round(cam.centre, 3).tolist()}); check the camera's placement or the initial pose"
+                )
+
+    # ------------------------------------------------------------------ checks
+    def visible_bodies(self, q=None, cameras: Sequence[Camera] | None = None) -> list[int]:
+        """Indices of bodies whose inner silhouette falls in at least one camera."""
+        poses = self.robot.body_poses(self.q if q is None else q)
+        cams = self.cameras if cameras is None else cameras
+        return [i for i, P in enumerate(poses) if any(body_bbox(c, P, self.inner[i], 0) is not None for c in cams)]
+
+    def _masks(self, masks, source: str) -> list[np.ndarray]:
+        if isinstance(masks, np.ndarray) and masks.ndim == 2:
+            masks = [masks]
+        masks = list(masks)
+        if len(masks) != len(self.cameras):
+            raise InputDataError(f"{source}: {len(masks)} masks for {len(self.cameras)} cameras")
+        out = []
+        for k, (m, cam) in enumerate(zip(masks, self.cameras)):
+            m = np.asarray(m)
+            if m.ndim != 2 or m.shape != cam.shape:
+                size = f"{m.shape[1]}x{m.shape[0]}" if m.ndim == 2 else f"of shape {m.shape}"
+                raise InputDataError(
+                    f"{source}: camera {k} mask is {size} but the camera is {cam.width}x{cam.height}"
+                )
+            out.append(m.astype(bool) if m.dtype != bool else m)
+        return out
+
+    def _iou(self, q: np.ndarray, masks: Sequence[np.ndarray]) -> float:
+        poses = self.robot.body_poses(q)
+        inter = union = 0
+        for cam, mask in zip(self.cameras, masks):
+            model = np.zeros(cam.shape, dtype=bool)
+            for P, li in zip(poses, self.inner):
+                img = body_image(cam, P, li, 0.5, slack_px=0.0, max_pixels=10**9)
+                if img is None:
+                    continue
+                a2, _ = _geometry(img, P.rotation, P.translation, li, False)
+                model[img.slices] |= (a2 <= 1.0).reshape(img.shape)
+            inter += int(np.count_nonzero(model & mask))
+            union += int(np.count_nonzero(model | mask))
+        return inter / union if union else 1.0
+
+    # ------------------------------------------------------------------ ECM
+    def _change(self, q0: np.ndarray, q1: np.ndarray) -> float:
+        """Largest joint change (rad); root translation in hundredths of the height per degree."""
+        dq = np.abs(pin.difference(self.robot.model, q0, q1))
+        if self._root_dofs:
+            dq[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
+        return float(dq.max()) if len(dq) else 0.0
+
+    def iterate(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float, timings: dict) -> np.ndarray:
+        """One ECM iteration (E-step, M-step, static update) from ``q``; returns the new q."""
+        robot = self.robot
+        n = len(robot.bodies)
+        poses = robot.body_poses(q)
+        t0 = time.perf_counter()
+        # E-step: sharp silhouettes, their union per camera, what the others explain.
+        images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
+        views: list[list[BodyView]] = [[] for _ in range(n)]
+        for c, (cam, mask) in enumerate(zip(self.cameras, masks)):
+            log_free = np.zeros(cam.shape)  # Σ_j log(1 - s_j)
+            for i in range(n):
+                img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=self.max_pixels)
+                if img is None:
+                    continue
+                if img.stride != 1:  # the union needs every pixel: evaluate at full resolution
+                    img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=10**9)
+                a2, _ = _geometry(img, poses[i].rotation, poses[i].translation, self.inner[i], False)
+                h = (1.0 - a2) / (2.0 * img.delta)
+                img.s = h  # keep h; log(1 - s) = -log(1 + e^h)
+                log_free[img.slices] -= np.logaddexp(0.0, h).reshape(img.shape)
+                images[i][c] = img
+            for i in range(n):
+                img = images[i][c]
+                if img is None:
+                    continue
+                own = -np.logaddexp(0.0, img.s)
+                others = log_free[img.slices].ravel() - own
+                o = -np.expm1(np.minimum(others, 0.0))
+                y = mask[img.slices].ravel().astype(float)
+                views[i].append(BodyView(img, y, o))
+        t1 = time.perf_counter()
+        # M-step: every body on its own.
+        targets = np.empty((n, 7))
+        k = np.zeros((n, 7))
+        fits = []
+        for i in range(n):
+            fit = fit_body(views[i], poses[i], self.inner[i], iterations=self.m_iterations, damping=self.damping)
+            quat = pin.Quaternion(fit.pose.rotation)
+            theta = np.array([quat.w, quat.x, quat.y, quat.z])
+            targets[i] = [*fit.pose.translation, *theta]
+            fits.append(fit)
+            k[i] = _delta_to_stiffness(fit.hessian, theta)
+        t2 = time.perf_counter()
+        if self.static == "diagonal":
+            kmax = float(k.max())
+            if kmax <= 0:
+                q_new = q
+            else:
+                k = np.maximum(k / kmax, self.stiffness_floor)
+                q_new = static_update(robot, q, targets, k, max_iter=30, tol=1e-10).q
+        else:
+            q_new = self._static_update_full(q, fits)
+        t3 = time.perf_counter()
+        timings["e_step"] += t1 - t0
+        timings["m_step"] += t2 - t1
+        timings["static_update"] += t3 - t2
+        return q_new
+
+    def _static_update_full(self, q: np.ndarray, fits) -> np.ndarray:
+        """Virtual-work equilibrium with a full 6x6 spring per body (its M-step curvature).
+
+        The springs act on each body's pose error ``e_i = (t_i - t'_i, log(R_i R'_iᵀ))``
+        (world axes) with stiffness ``K_i = H_i`` plus a floor; the equilibrium
+        ``Σ J_iᵀ K_i e_i = 0`` (B^T Q = 0, eq. 2.28, with Q_i = -K_i e_i) is found by
+        Gauss-Newton in joint space.  This is the thesis's per-coordinate stiffness
+        taken one step further: coordinates of a body are coupled (an elongated body
+        is stiff across its axis, soft along it) in the body's own directions, not
+        the world's.
+        """
+        robot = self.robot
+        model, data = robot.model, robot.data
+        S = [np.r_[np.full(3, float(np.mean(li))), np.ones(3)] for li in self.inner]
+        hmax = max(float(np.max(np.diag(s[:, None] * f.hessian * s[None, :]))) for s, f in zip(S, fits))
+        if hmax <= 0:
+            return q
+        K = [f.hessian + self.stiffness_floor * hmax * np.diag(1.0 / s**2) for s, f in zip(S, fits)]
+        nv = model.nv
+        for _ in range(self.static_iterations):
+            pin.computeJointJacobians(model, data, q)
+            pin.updateFramePlacements(model, data)
+            A = np.zeros((nv, nv))
+            g = np.zeros(nv)
+            for i, fid in enumerate(robot.frame_ids):
+                M = data.oMf[fid]
+                T = fits[i].pose
+                e = np.r_[M.translation - T.translation, pin.log3(M.rotation @ T.rotation.T)]
+                J = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+                KJ = K[i] @ J
+                A += J.T @ KJ
+                g += KJ.T @ e
+            A[np.diag_indices(nv)] += 1e-9 * max(float(np.max(np.diag(A))), 1e-300)
+            dq = -np.linalg.solve(A, g)
+            q = pin.integrate(model, q, dq)
+            if np.abs(dq).max() < 1e-7:
+                break
+        return q
+
+    def step(self, masks, source: str = "frame") -> FrameResult:
+        """Track one frame: ``masks`` is one (H, W) mask per camera (bool or 0/1).
+
+        A frame whose masks are all empty keeps the last pose and is flagged
+        ``"empty mask"``; a camera whose mask alone is empty is left out of the
+        frame (flag ``"empty mask in camera k"``).
+        """
+        masks = self._masks(masks, source)
+        robot = self.robot
+        model = robot.model
+        timings = {"e_step": 0.0, "m_step": 0.0, "static_update": 0.0}
+        empty = [not m.any() for m in masks]
+        if all(empty):
+            res = FrameResult(self.q.copy(), robot.maximal_coordinates(self.q), 0, 0.0, False, ("empty mask",), timings)
+            self._advance(self.q, keep_velocity=False)
+            return res
+        flags = tuple(f"empty mask in camera {c}" for c, e in enumerate(empty) if e)
+        cams_saved = self.cameras
+        if flags:
+            self.cameras = [c for c, e in zip(cams_saved, empty) if not e]
+            masks = [m for m, e in zip(masks, empty) if not e]
+        try:
+            q = self.q.copy()
+            if self.prediction == "constant_velocity" and self._prev is not None:
+                q = pin.integrate(model, q, pin.difference(model, self._prev, self.q))
+            converged = False
+            it = 0
+            delta = self.delta_start
+            for it in range(1, self.max_iterations + 1):
+                q_new = self.iterate(q, masks, delta, timings)
+                change = self._change(q, q_new)
+                q = q_new
+                at_final = delta <= self.delta_final * 1.0001
+                delta = max(self.delta_final, 0.5 * delta)
+                if at_final and it >= self.min_iterations and change < self.tol:
+                    converged = True
+                    break
+            fit = self._iou(q, masks)
+        finally:
+            self.cameras = cams_saved
+        res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
+        self._advance(q)
+        return res
+
+    def _advance(self, q: np.ndarray, keep_velocity: bool = True) -> None:
+        self._prev = self.q.copy() if keep_velocity else q.copy()
+        self.q = q.copy()
+        self.frame += 1
+
+    def track(
+        self,
+        frames: Iterable,
+        *,
+        progress: bool = False,
+        on_frame: Callable[[int, FrameResult], None] | None = None,
+    ) -> Trajectory:
+        """Track a sequence; each item is the frame's masks (one per camera)."""
+        results: list[FrameResult] = []
+        iterator = frames
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(frames, unit="frame", desc="tracking")
+        for k, masks in enumerate(iterator):
+            r = self.step(masks, source=f"frame {k}")
+            results.append(r)
+            if on_frame is not None:
+                on_frame(k, r)
+        return Trajectory(self.robot, np.array([r.q for r in results]).reshape(-1, self.robot.nq), results)

@@ -1,0 +1,149 @@
+"""ECM tracker: truth is a fixed point, recovery from a perturbed pose, a short
+sequence without drift, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.motions import make_motion
+from kms2pin.ecm.synth import render
+from kms2pin.ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
+from kms2pin.errors import CameraError, InputDataError
+from kms2pin.robot import load
+
+SPECS = ("puma600", "lowerbody", "fullbody", "jplhand")
+
+
+DIR = Path(__file__).resolve().parents[2] / "specs"
+
+
+def _robot(name):
+    return load(DIR / f"{name}.kms", root="free")
+
+
+def _cams(robot, n=2):
+    return [Camera.default(), Camera.look_at(position=[8, 0, 8], target=robot.q_rest[:3])][:n]
+
+
+def centre_error(robot, q, qt) -> float:
+    """Mean body-centre error, % of the model height."""
+    a = robot.maximal_coordinates(q)[:, :3]
+    b = robot.maximal_coordinates(qt)[:, :3]
+    return float(np.linalg.norm(a - b, axis=1).mean() / robot.height * 100)
+
+
+def joint_errors(robot, q, qt) -> np.ndarray:
+    """Revolute joint errors (degrees)."""
+    return np.degrees(np.abs(pin.difference(robot.model, q, qt)))[6:]
+
+
+def _perturbed(robot, qt, rng, deg=8.0):
+    q0 = qt.copy()
+    q0[7:] += np.radians(rng.uniform(-deg, deg, robot.nq - 7))
+    q0[:3] += rng.uniform(-1, 1, 3) * 0.01 * robot.height
+    return q0
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_truth_is_a_fixed_point(name):
+    robot = _robot(name)
+    rng = np.random.default_rng(10)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    tr = Tracker(robot, cams, q0=qt)
+    r = tr.step(render(robot, qt, cams))
+    assert centre_error(robot, r.q, qt) < 0.5
+    # puma600's base is a body of revolution about its own joint axis: with a free root,
+    # turning the root about it and link1 back is invisible (a gauge); skip that pair.
+    errs = joint_errors(robot, r.q, qt)
+    if name == "puma600":
+        errs = errs[1:]
+    # Joints whose bodies the silhouettes hardly fix (fullbody's right elbow: the forearm
+    # lies over the trunk in both views, ~13 deg; jplhand's small finger tips, ~3 deg)
+    # drift; all but the two worst joints stay < 2 deg.
+    assert np.sort(errs)[-3 if len(errs) > 3 else 0] < 2.0
+    assert errs.max() < 15.0
+    assert r.fit > 0.97
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_single_frame_recovers_the_pose(name):
+    robot = _robot(name)
+    rng = np.random.default_rng(11)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    q0 = _perturbed(robot, qt, rng)
+    tr = Tracker(robot, cams, q0=q0, max_iterations=10)
+    r = tr.step(render(robot, qt, cams))
+    before = centre_error(robot, q0, qt)
+    after = centre_error(robot, r.q, qt)
+    assert after < 0.5 and after < 0.2 * before
+    errs = joint_errors(robot, r.q, qt)
+    if name == "puma600":
+        errs = errs[1:]
+    assert np.median(errs) < 2.0 and errs.max() < 6.0
+    assert r.fit > 0.97
+
+
+@pytest.mark.slow
+def test_one_camera_single_frame():
+    robot = _robot("lowerbody")
+    rng = np.random.default_rng(12)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot, 1)
+    q0 = _perturbed(robot, qt, rng)
+    r = Tracker(robot, cams, q0=q0, max_iterations=10).step(render(robot, qt, cams))
+    # One camera fits the silhouette but leaves depth (and the tilts that keep an
+    # outline) weakly fixed: the 3-D error need not fall (here 1.2 % -> ~2 %).
+    assert r.fit > 0.95
+    assert centre_error(robot, r.q, qt) < 3.0
+
+
+@pytest.mark.slow
+def test_walk_sequence_stays_accurate(tmp_path):
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    motion = make_motion(robot, "walk", 30)
+    tr = Tracker(robot, cams)
+    errs = []
+    with TrajectoryCsvWriter(robot, tmp_path / "t.csv") as w:
+        for f, qt in enumerate(motion):
+            r = tr.step(render(robot, qt, cams), source=f"frame {f}")
+            w.write(f, r)
+            errs.append(centre_error(robot, r.q, qt))
+    errs = np.array(errs)
+    assert errs.mean() < 1.0 and errs.max() < 2.0
+    assert errs[-10:].mean() < 1.0  # no drift
+    back = Trajectory.from_csv(robot, tmp_path / "t.csv")
+    assert len(back) == 30
+
+
+def test_empty_mask_keeps_the_pose_and_is_flagged():
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    tr = Tracker(robot, cams)
+    r = tr.step([np.zeros(c.shape, bool) for c in cams])
+    assert "empty mask" in r.flags
+    np.testing.assert_array_equal(r.q, robot.q_rest)
+
+
+def test_wrong_mask_size_names_the_frame():
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    tr = Tracker(robot, cams)
+    with pytest.raises(InputDataError, match="frame 7.*camera 1.*100x50"):
+        tr.step([np.zeros((240, 320), bool), np.zeros((50, 100), bool)], source="frame 7")
+    with pytest.raises(InputDataError, match="1 masks for 2 cameras"):
+        tr.step([np.zeros((240, 320), bool)])
+
+
+def test_camera_that_does_not_see_the_model():
+    robot = _robot("lowerbody")
+    away = Camera.look_at(position=[0, 0, 20], target=[0, 0, 40], name="away")
+    with pytest.raises(CameraError, match="camera 1 'away' does not see the model"):
+        Tracker(robot, [Camera.default(), away])

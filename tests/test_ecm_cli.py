@@ -1,0 +1,103 @@
+"""synth -> track -> evaluate end to end, and bad input to the ECM commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from kms2pin.cli import main
+from kms2pin.ecm.camera import Camera
+from kms2pin.robot import load
+
+SPECS = Path(__file__).resolve().parents[1] / "specs"
+LOWER = str(SPECS / "lowerbody.kms")
+
+
+@pytest.fixture(scope="module")
+def cams2(tmp_path_factory) -> str:
+    robot = load(LOWER, root="free")
+    path = tmp_path_factory.mktemp("cams") / "cams.json"
+    Camera.list_to_json([Camera.default(), Camera.look_at(position=[8, 0, 8], target=robot.q_rest[:3])], path)
+    return str(path)
+
+
+def _synth(tmp_path, cams, frames=4, noise=0.0, extra=()):
+    d = tmp_path / "masks"
+    assert main(["synth", LOWER, "--frames", str(frames), "--cameras", cams, "--noise", str(noise),
+                 "--seed", "1", "-o", str(d), *extra]) == 0
+    return d
+
+
+@pytest.mark.slow
+def test_synth_track_evaluate(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=20, noise=0.02)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(out)]) == 0
+    for name in ("trajectory.csv", "poses.npz", "overlay.mp4", "model.kms", "meta.json"):
+        assert (out / name).is_file(), name
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["frames"] == 20
+    assert rep["mean_centre_error_pct"] < 2.0
+    assert rep["revolute_rmse_deg"] < 5.0
+
+
+def test_synth_layout_one_camera(tmp_path):
+    d = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "2", "--noise", "0.05", "--size-mismatch", "0.1", "-o", str(d)]) == 0
+    assert sorted(p.name for p in (d / "cam0").iterdir()) == ["frame_00000.png", "frame_00001.png"]
+    assert len(Camera.list_from_json(d / "cameras.json")) == 1
+    img = cv2.imread(str(d / "cam0" / "frame_00000.png"), cv2.IMREAD_UNCHANGED)
+    assert img.shape == (240, 320) and set(np.unique(img)) <= {0, 255}
+
+
+def test_track_wrong_size_names_file_and_frame(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=3)
+    bad = masks / "cam1" / "frame_00001.png"
+    cv2.imwrite(str(bad), np.zeros((100, 120), np.uint8))
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert "frame_00001.png" in err and "frame 1" in err and "120x100" in err
+    # rows up to the bad frame were written
+    assert len((tmp_path / "o" / "trajectory.csv").read_text().splitlines()) == 2
+
+
+def test_track_missing_frame_and_unreadable(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=4)
+    (masks / "cam0" / "frame_00002.png").unlink()
+    (masks / "cam1" / "frame_00002.png").unlink()
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(tmp_path / "o")]) == 1
+    assert "missing frame(s) 2" in capsys.readouterr().err
+    (masks / "cam0" / "frame_00002.png").write_bytes(b"not a png")
+    cv2.imwrite(str(masks / "cam1" / "frame_00002.png"), np.zeros((240, 320), np.uint8))
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert "frame_00002.png: frame 2: cannot read" in err
+
+
+def test_track_non_binary_and_empty(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=3)
+    p = masks / "cam0" / "frame_00001.png"
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(p), (img // 255 * 200).astype(np.uint8) + 10)
+    for c in (0, 1):
+        cv2.imwrite(str(masks / f"cam{c}" / "frame_00002.png"), np.zeros((240, 320), np.uint8))
+    out = tmp_path / "o"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "frame_00001.png: frame 1: not a binary mask; thresholded at 127" in err
+    assert "frame 2: empty mask" in err
+    last = (out / "trajectory.csv").read_text().splitlines()[-1]
+    assert last.endswith("empty mask")
+
+
+def test_evaluate_bad_folder(tmp_path, capsys):
+    (tmp_path / "x").mkdir()
+    assert main(["evaluate", str(tmp_path / "x"), str(tmp_path / "t.csv")]) == 1
+    assert "not a kms2pin track output" in capsys.readouterr().err
+    assert main(["evaluate", str(tmp_path / "nope"), str(tmp_path / "t.csv")]) == 2
