@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     interrupted = False
     try:
         with TrajectoryCsvWriter(robot, out / "trajectory.csv") as csv_out:
-            for k, frame in enumerate(iterator):
+            for frame in iterator:
                 masks = [read_mask(pc[frame], frame, cam) for pc, cam in zip(per_cam, cameras)]
                 names = ", ".join(str(pc[frame]) for pc in per_cam)
                 r = tracker.step(masks, source=f"{names}: frame {frame}")
