@@ -56,6 +56,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Kms2pinError as err:
         print(str(err), file=sys.stderr)
         return EXIT_MODEL
+    except BrokenPipeError:  # e.g. `kms2pin check --json x | head`
+        sys.stderr.close()
+        return EXIT_OK
     except KeyboardInterrupt:
         print(f"kms2pin {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -4,9 +4,9 @@ Every error a user can cause by their input derives from :class:`Kms2pinError`.
 Spec errors carry a list of located :class:`Diagnostic` records so that the
 command line can report every mistake of a file in one run, compiler-style::
 
-    fullbody.kms:41:22: error: body 'leftThigh' has no bound vector 'kne' (did you mean 'knee'?)
-        constraint revolute(leftThigh.kne, leftShin.knee, 20);
-                                      ^
+    fullbody.kms:171:50: error: body 'leftThigh' has no bound vector 'kne' (did you mean 'knee'?)
+            constraint revolute(leftShin.knee, leftThigh.kne, 2*postureDelta);
+                                                         ^
 """
 
 from __future__ import annotations

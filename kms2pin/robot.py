@@ -210,7 +210,7 @@ def euler_parameters(R: np.ndarray, convention: str = "positive") -> np.ndarray:
         if e[0] < 0:
             e = -e
     elif convention == "thesis":
-        nz = np.flatnonzero(np.abs(e[1:]) > 1e-15)
+        nz = np.flatnonzero(np.abs(e[1:]) > 1e-12)  # below that it is rounding noise
         if len(nz) and e[1 + nz[0]] < 0:
             e = -e
         elif not len(nz) and e[0] < 0:

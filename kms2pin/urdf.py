@@ -32,6 +32,12 @@ MESH_DIR = "meshes"
 LIMIT = math.pi  # the thesis's joints have no limits: a full turn either way of 0 is allowed
 
 
+def wrap_angle(a: float) -> float:
+    """The same angle in (-pi, pi] (rest angles beyond a half turn stay within the limits)."""
+    w = math.remainder(a, 2.0 * math.pi)
+    return math.pi if w == -math.pi else w
+
+
 def _num(x: float) -> str:
     s = f"{x:.15g}"
     return "0" if s in ("-0", "0") else s
@@ -143,7 +149,7 @@ def to_srdf(system: System, source: str = "", free_root: bool = False) -> str:
     lines.append("  </group>")
     lines.append(f'  <group_state name="rest" group={quoteattr(system.name)}>')
     lines += [
-        f'    <joint name={quoteattr(j.name)} value="{_num(math.radians(j.default_angle))}"/>'
+        f'    <joint name={quoteattr(j.name)} value="{_num(wrap_angle(math.radians(j.default_angle)))}"/>'
         for j in joints
         if j.kind == "revolute"
     ]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 from lark import Lark, Token, Transformer
-from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken, VisitError
+from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
 from ..errors import Diagnostic, SpecError
 from ..model import Loc
@@ -179,7 +179,7 @@ def _syntax_diagnostic(err: UnexpectedInput, text: str, path: str) -> Diagnostic
         else:
             message = f"unexpected {_describe_token(tok)}; expected {what}"
             prev = (getattr(err, "token_history", None) or [None])[-1]
-            if "SEMICOLON" in expected and prev is not None and prev.end_line is not None:
+            if expected & {"SEMICOLON", "SEMI"} and prev is not None and prev.end_line is not None:
                 if prev.end_line != line:
                     line, col = prev.end_line, prev.end_column
                     message = f"expected ';' after {_describe_token(prev)}"

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Diagnostic, SpecError, did_you_mean
-from ..model import Body, BoundVector, Joint, Loc, ModelSpec, System
+from ..model import WORLD, Body, BoundVector, Joint, Loc, ModelSpec, System
 from . import ast as A
 
 
@@ -41,11 +41,35 @@ class _Fail(Exception):
 _D2R = math.pi / 180.0
 
 
+# exact where the value is 0, +-1/2 or +-1, so that sin(30) == 0.5 and cos(90) == 0
+# (then orient(cos(a), sin(a), 0) lies exactly on an axis for a = 0, 90, 180, ...)
+_EXACT = {
+    "sin": (360.0, {0.0: 0.0, 30.0: 0.5, 90.0: 1.0, 150.0: 0.5, 180.0: 0.0, 210.0: -0.5, 270.0: -1.0, 330.0: -0.5}),
+    "cos": (360.0, {0.0: 1.0, 60.0: 0.5, 90.0: 0.0, 120.0: -0.5, 180.0: -1.0, 240.0: -0.5, 270.0: 0.0, 300.0: 0.5}),
+    "tan": (180.0, {0.0: 0.0, 45.0: 1.0, 135.0: -1.0}),
+}
+
+
+def _trig(name: str, fn):
+    period, table = _EXACT[name]
+
+    def f(x: float) -> float:
+        r = math.fmod(x, period)  # exact; |r| < period, sign of x
+        key = r + period if r < 0 else r
+        if key in table:
+            return table[key]
+        if name == "tan" and key == 90.0:
+            raise ValueError("tan(90) is infinite")
+        return fn(r * _D2R)
+
+    return f
+
+
 def _fn_table() -> dict[str, tuple[int, object]]:
     return {
-        "sin": (1, lambda x: math.sin(x * _D2R)),
-        "cos": (1, lambda x: math.cos(x * _D2R)),
-        "tan": (1, lambda x: math.tan(x * _D2R)),
+        "sin": (1, _trig("sin", math.sin)),
+        "cos": (1, _trig("cos", math.cos)),
+        "tan": (1, _trig("tan", math.tan)),
         "asin": (1, lambda x: math.degrees(math.asin(x))),
         "acos": (1, lambda x: math.degrees(math.acos(x))),
         "atan": (1, lambda x: math.degrees(math.atan(x))),
@@ -68,6 +92,7 @@ def _fn_table() -> dict[str, tuple[int, object]]:
 FUNCTIONS = _fn_table()
 STATEMENTS = {"innerLam": "body", "outerLam": "body", "pos": "bvec", "orient": "bvec"}
 JOINT_KINDS = ("fixed", "revolute")
+MAX_LENGTH = 1e6  # larger bodies overflow the URDF's inertia (mass ~ a b c, inertia ~ m a^2)
 
 
 # --- things being built
@@ -95,7 +120,8 @@ class _BodyB:
     outer: tuple | None = None
     outer_loc: Loc | None = None
     bvecs: dict[str, _BvecB] = field(default_factory=dict)
-    poisoned: bool = False
+    poisoned: bool = False  # broken: no message about it, and references to it are silent
+    failed: bool = False  # a statement in it failed: no "has no innerLam" echo
 
 
 @dataclass
@@ -136,6 +162,13 @@ class _Scope:
             s = s.parent
         return None
 
+    def snapshot(self) -> _Scope:
+        """The names declared so far (C++: a function sees what is declared before it).
+        The symbols are shared, so later assignments to them are still seen."""
+        copy = _Scope(self.parent.snapshot() if self.parent is not None else None)
+        copy.names = dict(self.names)
+        return copy
+
     def visible(self, kind: str | None = None) -> list[str]:
         out: list[str] = []
         s: _Scope | None = self
@@ -175,6 +208,7 @@ class Analyzer:
         self.inertial: dict[str, _BvecB] = {}
         self.joints: list[_JointB] = []
         self.constraint_failed = False  # then reachability errors would only echo it
+        self.dry = 0  # > 0: only type-check (the operand a short circuit or '?:' skips)
 
     # ---------------------------------------------------------------- errors
     def error(self, loc: Loc, message: str) -> None:
@@ -190,8 +224,11 @@ class Analyzer:
         if not self.diags and not systems:
             self.error(Loc(1, 1), "the spec defines no rigidBodySystem")
         if self.diags:
-            self.diags.sort(key=lambda d: (d.line, d.column))
-            raise SpecError(self.diags)
+            # a body function runs once per instantiation: report each mistake in it once
+            unique: dict[tuple, Diagnostic] = {}
+            for d in self.diags:
+                unique.setdefault((d.line, d.column, d.message), d)
+            raise SpecError(sorted(unique.values(), key=lambda d: (d.line, d.column)))
         inertial = {n: self.freeze_bvec(b) for n, b in self.inertial.items()}
         return ModelSpec(tuple(systems), inertial, self.path)
 
@@ -201,8 +238,22 @@ class Analyzer:
                 self.exec(s, scope, ctx)
             except _Fail as f:
                 self.error(f.loc, f.message)
+                self.poison(ctx, s)
             except RecursionError:
                 self.error(s.loc, "this statement is nested too deeply")
+                self.poison(ctx, s)
+
+    @staticmethod
+    def poison(ctx: _Ctx, s: A.Node) -> None:
+        """Statement ``s`` building a body or bvec failed: its owner is incomplete, so
+        later checks of it (no innerLam, no pos, ...) would only echo the first error."""
+        if ctx.bvec is not None:
+            ctx.bvec.poisoned = True
+        elif ctx.body is not None:
+            if isinstance(s, A.If):  # a skipped branch may have declared bvecs
+                ctx.body.poisoned = True
+            else:
+                ctx.body.failed = True
 
     def declare(self, scope: _Scope, name: str, sym: _Sym, loc: Loc) -> bool:
         old = scope.names.get(name)
@@ -228,6 +279,9 @@ class Analyzer:
                 except _Fail as f:
                     self.error(f.loc, f.message)
                     t, value = s.type, POISON
+                except RecursionError:  # still declare the variable: no 'unknown variable' echo
+                    self.error(s.init.loc, "this expression is nested too deeply")
+                    t, value = s.type, POISON
                 if t != s.type and value is not POISON:
                     self.error(s.init.loc, f"cannot initialize {s.type} '{s.name}' with a {t} value")
                     value = POISON
@@ -240,7 +294,8 @@ class Analyzer:
             t, v = self.eval(s.test, scope)
             if t != "bool":
                 raise _Fail(s.test.loc, f"an if condition must be bool, not {t}")
-            if v is POISON:
+            if v is POISON:  # unknown branch: what it would declare is unknown too
+                self.poison(ctx, s)
                 return
             branch = s.then if v else s.other
             if branch is not None:
@@ -267,7 +322,7 @@ class Analyzer:
                 if p.name in names:
                     self.error(p.loc, f"parameter '{p.name}' is declared twice")
                 names.add(p.name)
-            self.declare(scope, s.name, _Sym("func", s.name_loc, value=s, scope=scope), s.name_loc)
+            self.declare(scope, s.name, _Sym("func", s.name_loc, value=s, scope=scope.snapshot()), s.name_loc)
             return
         if isinstance(s, A.BodyInstance):
             self.exec_instance(s, scope, ctx)
@@ -333,9 +388,11 @@ class Analyzer:
             if t != "double":
                 raise _Fail(a.loc, f"'{s.func}' takes doubles; this argument is {t}")
             vals.append(float(v))
-        target = ctx.body if owner == "body" else ctx.bvec
-        if poisoned:
-            target.poisoned = True
+        if poisoned:  # an earlier error: this statement is incomplete, say nothing more
+            if owner == "body":
+                ctx.body.failed = True
+            else:
+                ctx.bvec.poisoned = True
             return
         value = tuple(vals)
         if s.func == "innerLam":
@@ -355,9 +412,8 @@ class Analyzer:
             if s.name in body.bvecs:
                 old = body.bvecs[s.name]
                 self.error(s.name_loc, f"body '{body.name}' already has a bound vector '{s.name}' (line {old.loc.line})")
-            else:
+            elif self.declare(scope, s.name, _Sym("bvec", s.name_loc, value=bvec), s.name_loc):
                 body.bvecs[s.name] = bvec
-            self.declare(scope, s.name, _Sym("bvec", s.name_loc, value=bvec), s.name_loc)
         else:
             if self.declare(scope, s.name, _Sym("bvec", s.name_loc, value=bvec), s.name_loc):
                 self.inertial.setdefault(s.name, bvec)
@@ -366,6 +422,9 @@ class Analyzer:
     def new_body(self, name: str, loc: Loc, scope: _Scope, ctx: _Ctx) -> _BodyB:
         system = ctx.system
         body = _BodyB(name, loc, system)
+        if name == WORLD:
+            self.error(loc, f"'{WORLD}' cannot name a body: the URDF uses it for the inertial frame")
+            body.poisoned = True  # still declared, so references to it stay quiet
         if name in system.bodies:
             old = system.bodies[name]
             self.error(loc, f"system '{system.name}' already has a body '{name}' (line {old.loc.line})")
@@ -377,6 +436,15 @@ class Analyzer:
         return body
 
     def exec_instance(self, s: A.BodyInstance, scope: _Scope, ctx: _Ctx) -> None:
+        try:
+            self.instantiate(s, scope, ctx)
+        except _Fail:
+            # declare the body anyway (poisoned) so references to it do not cascade
+            if ctx.where == "system" and s.name not in ctx.system.bodies and s.name not in scope.names:
+                self.new_body(s.name, s.name_loc, scope, ctx).poisoned = True
+            raise
+
+    def instantiate(self, s: A.BodyInstance, scope: _Scope, ctx: _Ctx) -> None:
         sym = scope.lookup(s.func)
         if sym is None or sym.kind != "func":
             if sym is None:
@@ -506,9 +574,9 @@ class Analyzer:
         if isinstance(e, A.Number):
             if not math.isfinite(e.value):
                 raise _Fail(e.loc, "this number is too large")
-            return "double", e.value
+            return "double", POISON if self.dry else e.value
         if isinstance(e, A.Bool):
-            return "bool", e.value
+            return "bool", POISON if self.dry else e.value
         if isinstance(e, A.Name):
             if len(e.parts) > 1:
                 raise _Fail(e.loc, f"'{e.text}' is a bound-vector reference; only a constraint can use it")
@@ -517,6 +585,8 @@ class Analyzer:
                 raise _Fail(e.loc, f"unknown variable '{e.parts[0]}'{did_you_mean(e.parts[0], scope.visible('var'))}")
             if sym.kind != "var":
                 raise _Fail(e.loc, f"'{e.parts[0]}' is {_KIND_WORDS[sym.kind]}, not a variable")
+            if self.dry:
+                return sym.type, POISON
             if sym.value is None:
                 raise _Fail(e.loc, f"variable '{e.parts[0]}' is used before it is given a value")
             return sym.type, sym.value
@@ -535,8 +605,8 @@ class Analyzer:
             t, v = self.eval(e.test, scope)
             if t != "bool":
                 raise _Fail(e.test.loc, f"the condition of '?:' must be bool, not {t}")
-            t1, v1 = self.eval(e.then, scope)
-            t2, v2 = self.eval(e.other, scope)
+            t1, v1 = self.eval_dry(e.then, scope, v is POISON or not v)
+            t2, v2 = self.eval_dry(e.other, scope, v is POISON or bool(v))
             if t1 != t2:
                 raise _Fail(e.loc, f"the two branches of '?:' differ in type ({t1} and {t2})")
             if v is POISON:
@@ -546,6 +616,15 @@ class Analyzer:
             return self.eval_call(e, scope)
         raise _Fail(e.loc, "this is not an expression")
 
+    def eval_dry(self, e: A.Node, scope: _Scope, dry: bool = True) -> tuple[str, object]:
+        """Evaluate ``e``, or with ``dry`` only type-check it: its value is POISON and
+        no value error (division by zero, sqrt(-1), ...) is raised."""
+        self.dry += dry
+        try:
+            return self.eval(e, scope)
+        finally:
+            self.dry -= dry
+
     def eval_binop(self, e: A.BinOp, scope: _Scope) -> tuple[str, object]:
         op = e.op
         tl, vl = self.eval(e.left, scope)
@@ -553,7 +632,7 @@ class Analyzer:
             if tl != "bool":
                 raise _Fail(e.left.loc, f"'{op}' needs bool operands; the left one is {tl}")
             if vl is not POISON and ((op == "&&" and not vl) or (op == "||" and vl)):
-                tr, _ = self.eval(e.right, scope)  # type-check only (short-circuit)
+                tr, _ = self.eval_dry(e.right, scope)  # short circuit: type-check only
                 if tr != "bool":
                     raise _Fail(e.right.loc, f"'{op}' needs bool operands; the right one is {tr}")
                 return "bool", vl
@@ -659,10 +738,14 @@ class Analyzer:
             return
         for what, lam, loc in (("innerLam", body.inner, body.inner_loc), ("outerLam", body.outer, body.outer_loc)):
             if lam is None:
-                self.error(body.loc, f"body '{body.name}' has no {what}(x, y, z)")
+                if not body.failed:
+                    self.error(body.loc, f"body '{body.name}' has no {what}(x, y, z)")
                 body.poisoned = True
             elif min(lam) <= 0:
                 self.error(loc, f"{what} semi-axes must be positive, got ({_fmt(lam)})")
+                body.poisoned = True
+            elif max(lam) > MAX_LENGTH:
+                self.error(loc, f"{what} semi-axes must be at most {MAX_LENGTH:g}, got ({_fmt(lam)})")
                 body.poisoned = True
         if body.poisoned:
             return
@@ -682,12 +765,13 @@ class Analyzer:
             if val is None:
                 self.error(bv.loc, f"bound vector '{bv.name}'{owner} has no {what}(x, y, z)")
                 bv.poisoned = True
-        if bv.orient is not None and np.linalg.norm(bv.orient) < 1e-12:
+        if bv.orient is not None and _norm(bv.orient) < 1e-12:
             self.error(bv.orient_loc, f"orient vector of '{bv.name}'{owner} is zero; a bound vector needs a direction")
             bv.poisoned = True
 
     def freeze_bvec(self, bv: _BvecB) -> BoundVector:
         o = np.asarray(bv.orient, dtype=float)
+        o = o / np.max(np.abs(o))  # first scale, so that huge or tiny vectors do not overflow
         o = o / np.linalg.norm(o)
         return BoundVector(
             bv.name,
@@ -776,19 +860,25 @@ class Analyzer:
             if name not in parent_of and not body.poisoned and not self.constraint_failed:
                 self.error(body.loc, f"body '{name}' has no path to the inertial frame (no chain of joints connects it)")
                 bad = True
-        if bad or any(sb.bodies[n].poisoned for n in order):
-            return None
+        if bad or self.diags or any(sb.bodies[n].poisoned for n in order):
+            return None  # with any error there is no model (and bvecs may be incomplete)
         bodies = []
         out_joints = []
+        used: set[str] = set()
         for name, j, parent in zip(order, tree_joints, parents):
             b = sb.bodies[name]
             bvecs = {n: self.freeze_bvec(v) for n, v in b.bvecs.items()}
             bodies.append(Body(name, b.inner, b.outer, bvecs, sb.name, b.loc))
             child_end = j.ends[0] if (j.ends[0].body and j.ends[0].body.name == name) else j.ends[1]
             parent_end = j.ends[1] if child_end is j.ends[0] else j.ends[0]
+            jname = f"{name}_{child_end.name}"
+            k = 2
+            while jname in used:  # body 'a_b' + bvec 'c' and body 'a' + bvec 'b_c'
+                jname, k = f"{name}_{child_end.name}_{k}", k + 1
+            used.add(jname)
             out_joints.append(
                 Joint(
-                    f"{name}_{child_end.name}",
+                    jname,
                     j.kind,
                     parent,
                     name,
@@ -816,6 +906,11 @@ class Analyzer:
         while path[-1] != a:
             path.append(prev[path[-1]])
         return path[::-1]
+
+
+def _norm(v) -> float:
+    """Euclidean norm without overflow for huge components (math.hypot scales)."""
+    return math.hypot(*v)
 
 
 def _fmt(v) -> str:
