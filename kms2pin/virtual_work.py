@@ -89,16 +89,18 @@ def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
                 f"'{robot.system.name}', not shape {out.shape}"
             )
         mask = np.ones(n, dtype=bool)
-    for i in np.flatnonzero(mask):
+    finite = np.isfinite(out).all(axis=1)
+    norms = np.sqrt(np.einsum("ij,ij->i", out[:, 3:], out[:, 3:]))
+    bad = mask & (~finite | (np.abs(norms - 1.0) > 1e-6))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
         name = robot.bodies[i]
-        if not np.all(np.isfinite(out[i])):
+        if not finite[i]:
             raise TargetError(f"target of body '{name}' is not finite: {out[i]}")
-        norm = np.linalg.norm(out[i, 3:])
-        if abs(norm - 1.0) > 1e-6:
-            raise TargetError(
-                f"target of body '{name}' has Euler parameters of norm {norm:.6g}; they must be a unit "
-                "quaternion (eq. 2.6)"
-            )
+        raise TargetError(
+            f"target of body '{name}' has Euler parameters of norm {norms[i]:.6g}; they must be a unit "
+            "quaternion (eq. 2.6)"
+        )
     return out, mask
 
 
@@ -125,7 +127,8 @@ _EPS = np.zeros((3, 9))  # v @ _EPS is [v]x flattened (eq. 2.3)
 for _i, _j, _k, _sgn in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 2, 0, -1), (1, 0, 2, 1), (2, 0, 1, -1), (2, 1, 0, 1)):
     _EPS[_k, 3 * _i + _j] = _sgn
 
-# E(theta) is linear in theta: E = theta @ _EBASIS reshaped (see _quat_rate_matrices)
+# E(theta) = [-v^T; theta0 I - [v]x] (theta = (theta0, v)) is linear in theta: E = theta @ _EBASIS
+# reshaped (4, 3); d theta/dt = 1/2 E(theta) omega for a world-frame omega
 _EBASIS = np.zeros((4, 12))
 for _row, _entries in enumerate(
     (((1, -1), (2, -1), (3, -1)), ((0, 1), (3, 1), (2, -1)), ((3, -1), (0, 1), (1, 1)), ((2, 1), (1, -1), (0, 1)))
@@ -137,12 +140,6 @@ for _row, _entries in enumerate(
 def _skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices (n, 3, 3) of vectors (n, 3) (eq. 2.3)."""
     return (v @ _EPS).reshape(-1, 3, 3)
-
-
-def _quat_rate_matrices(theta: np.ndarray) -> np.ndarray:
-    """E(theta) (n, 4, 3) with d theta/dt = 1/2 E(theta) omega for a world-frame omega,
-    i.e. theta_dot = 1/2 [0, omega] (x) theta: E = [-v^T; theta0 I - [v]x], theta = (theta0, v)."""
-    return (theta @ _EBASIS).reshape(-1, 4, 3)
 
 
 class _Structure:
@@ -165,6 +162,10 @@ class _Structure:
         # Hessian entries (a <= b) pair an ancestor column a with a descendant b; the
         # columns of one multi-DoF joint (the free flyer) take the symmetric average.
         self.same_joint = col_joint[:, None] == col_joint[None, :]
+        self.revolute_q = np.array(
+            [model.joints[j].idx_q for j in range(1, model.njoints) if model.joints[j].nq == 1], dtype=int
+        )
+        self.multi_dof = any(model.joints[j].nv > 1 for j in range(1, model.njoints))
         self.upper = np.triu(np.ones((nv, nv)))
         self.strict_upper = np.triu(np.ones((nv, nv)), 1)
 
@@ -183,77 +184,90 @@ def _structure(robot: Robot) -> _Structure:
 
 
 class _Evaluator:
-    """Maximal coordinates, springs, B = d q_max / d q and the Newton Hessian at q."""
+    """Maximal coordinates, springs, B = d q_max / d q and the Newton Hessian at q.
+
+    Internally the Euler parameters are kept in Pinocchio's (x, y, z, w) order, so the
+    coordinates come straight from ``SE3ToXYZQUAT``; energy, gradient and Hessian do
+    not depend on that order nor on the quaternions' signs.
+    """
 
     def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray):
         self.model, self.data = robot.model, robot.data
         self.frames = robot.frame_ids
-        self.targets = targets
-        self.k = k
-        self.sqrt_k = np.sqrt(k)
         self.n = len(self.frames)
         self.s = _structure(robot)
-        self.active = np.flatnonzero(k.any(axis=1))
+        order = [0, 1, 2, 4, 5, 6, 3]  # [mu, theta0..3] -> [mu, x, y, z, w]
+        self.targets = targets[:, order]
+        self.k = k[:, order]
+        self.sqrt_k = np.sqrt(self.k).reshape(-1, 1)
+        self.support3 = self.s.support[:, None, :]
 
     def coordinates(self) -> np.ndarray:
-        """Maximal coordinates (n, 7) of the frames in ``data`` (theta0 >= 0)."""
+        """(n, 7) [mu, x, y, z, w] of the body frames in ``data``."""
         oMf = self.data.oMf
-        xq = np.array([pin.SE3ToXYZQUAT(oMf[f]) for f in self.frames])  # x y z qx qy qz qw
-        qmax = np.empty_like(xq)
-        qmax[:, :3] = xq[:, :3]
-        qmax[:, 3] = xq[:, 6]
-        qmax[:, 4:] = xq[:, 3:6]
-        qmax[:, 3:] *= np.where(qmax[:, 3:4] < 0, -1.0, 1.0)
-        return qmax
+        return np.array([pin.SE3ToXYZQUAT(oMf[f]) for f in self.frames])
 
-    def aligned_targets(self, theta: np.ndarray) -> np.ndarray:
-        """Targets with each body's Euler parameters on the primary's side (§2.2.1)."""
-        t = self.targets.copy()
-        t[:, 3:] *= np.where(np.sum(t[:, 3:] * theta, axis=1) < 0, -1.0, 1.0)[:, None]
-        return t
+    def residual(self, X: np.ndarray) -> np.ndarray:
+        """q_max - q'_aligned in the internal layout (targets on the primary's side, §2.2.1)."""
+        diff = X - self.targets
+        flip = np.einsum("ij,ij->i", self.targets[:, 3:], X[:, 3:]) < 0
+        if flip.any():
+            diff[flip, 3:] = X[flip, 3:] + self.targets[flip, 3:]
+        return diff
 
     def linearize(self, q: np.ndarray, hessian: bool = True):
-        """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, q_max."""
+        """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, internal coords."""
         pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        qmax = self.coordinates()
-        p, theta = qmax[:, :3], qmax[:, 3:]
-        diff = qmax - self.aligned_targets(theta)
+        X = self.coordinates()
+        p, theta = X[:, :3], X[:, 3:]
+        diff = self.residual(X)
         rho = self.k * diff  # -F_i (eq. 2.33)
-        energy = 0.5 * float(np.sum(rho * diff))
+        energy = 0.5 * float(rho.ravel() @ diff.ravel())
         n, nv = self.n, self.model.nv
         Jw = self.data.J  # world frame: velocity of the point at the origin; omega
-        S = self.s.support[:, None, :]  # (n, 1, nv)
+        S = self.support3  # (n, 1, nv)
         Jang = Jw[3:][None] * S  # (n, 3, nv)
         Jlin = (Jw[:3][None] - _skew(p) @ Jw[3:][None]) * S  # v(p) = v0 + omega x p
-        E = _quat_rate_matrices(theta)
-        Jq = 0.5 * (E @ Jang)  # (n, 4, nv), d theta / d q
-        B = np.concatenate([Jlin, Jq], axis=1).reshape(7 * n, nv)  # d q_max / d q
+        E = (theta @ _EBASIS_XYZW).reshape(n, 4, 3)
+        B = np.concatenate([Jlin, 0.5 * (E @ Jang)], axis=1).reshape(7 * n, nv)  # d q_max / d q
         grad = B.T @ rho.ravel()
-        Bk = B * self.sqrt_k.reshape(-1, 1)
+        Bk = B * self.sqrt_k
         H = Bk.T @ Bk
         if hessian:
             H += self.second_order(rho, theta, E, Jlin, Jang)
-        return energy, grad, H, qmax
+        return energy, grad, H, X
 
     def second_order(self, rho, theta, E, Jlin, Jang) -> np.ndarray:
         """sum_i rho_i . d^2 q_max,i / dq_a dq_b (the Newton term Gauss-Newton drops).
 
         For a <= b (column a an ancestor of b): positions rho . (omega_a x J_b);
         Euler parameters 1/4 [g . (omega_a x omega_b) - (rho_theta . theta)(omega_a . omega_b)]
-        with g = E(theta)^T rho_theta; mirrored below the diagonal.
+        with g = E(theta)^T rho_theta; mirrored below the diagonal.  As bilinear forms of
+        the angular columns: omega_a^T (-[rho_mu]x J_b + 1/4 (-[g]x - c I) omega_b).
         """
         n, nv = self.n, self.model.nv
-        C = _skew(rho[:, :3]) @ Jang  # rho x omega_a, (n, 3, nv)
-        P = C.reshape(3 * n, nv).T @ Jlin.reshape(3 * n, nv)
         g = (rho[:, None, 3:] @ E)[:, 0]  # E^T rho_theta
-        Ja = Jang.reshape(3 * n, nv)
-        T1 = -(Ja.T @ (_skew(g) @ Jang).reshape(3 * n, nv))
-        c = np.sum(rho[:, 3:] * theta, axis=1)
-        T2 = Ja.T @ (Jang * c[:, None, None]).reshape(3 * n, nv)
-        A = P + 0.25 * (T1 - T2)
-        U = np.where(self.s.same_joint, 0.5 * (A + A.T), A)
-        return U * self.s.upper + (U * self.s.strict_upper).T
+        Z = _skew(-g)
+        Z[:, _DIAG, _DIAG] -= np.einsum("ij,ij->i", rho[:, 3:], theta)[:, None]
+        Y = _skew(-rho[:, :3]) @ Jlin + 0.25 * (Z @ Jang)
+        A = Jang.reshape(3 * n, nv).T @ Y.reshape(3 * n, nv)
+        if self.s.multi_dof:
+            A = np.where(self.s.same_joint, 0.5 * (A + A.T), A)
+        return A * self.s.upper + (A * self.s.strict_upper).T
+
+    def forces(self, X: np.ndarray) -> np.ndarray:
+        """Spring forces k (q' - q) (eq. 2.33), (n, 7) in the [mu, theta0..3] layout,
+        with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates."""
+        sign = np.where(X[:, 6] < 0, -1.0, 1.0)[:, None]
+        F = -(self.k * self.residual(X))
+        F[:, 3:] *= sign
+        return F[:, [0, 1, 2, 6, 3, 4, 5]]
+
+
+_DIAG = np.arange(3)
+# E for (x, y, z, w): the same rows and input components, reordered
+_EBASIS_XYZW = _EBASIS.reshape(4, 4, 3)[[1, 2, 3, 0]][:, [1, 2, 3, 0]].reshape(4, 12)
 
 
 def static_update(
@@ -287,13 +301,14 @@ def static_update(
         raise TargetError("q is not finite")
     if robot.root == "free":
         q[3:7] /= np.linalg.norm(q[3:7])
+    q_in = q.copy()
     tgt, mask = target_array(robot, targets)
     k = stiffness_array(robot, stiffness, mask)
     ev = _Evaluator(robot, tgt, k)
     nv = robot.model.nv
     eye = np.eye(nv)
 
-    energy, grad, H, qmax = ev.linearize(q)
+    energy, grad, H, X = ev.linearize(q)
     lam = 1e-8
     it = 0
     converged = False
@@ -307,18 +322,20 @@ def static_update(
             break
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
-        scale = max(float(np.max(np.abs(np.diag(H)))), 1e-12)
+        scale = max(float(H.diagonal().max()), 1e-12)
         accepted = False
         for _ in range(40):
             try:
-                L = np.linalg.cholesky(H + lam * scale * eye)
+                step = np.linalg.solve(H + (lam * scale) * eye, -grad)
             except np.linalg.LinAlgError:
                 lam = max(lam * 10.0, 1e-8)
                 continue
-            step = -np.linalg.solve(L.T, np.linalg.solve(L, grad))
+            if not step @ grad < 0:  # not a descent direction: H + lam I is not positive definite
+                lam = max(lam * 10.0, 1e-8)
+                continue
             q_new = pin.integrate(robot.model, q, step)
             lin = ev.linearize(q_new)
-            if np.isfinite(lin[0]) and lin[0] <= energy + 1e-15 * max(1.0, energy):
+            if lin[0] <= energy + 1e-15 * max(1.0, energy):
                 accepted = True
                 lam = max(lam * 0.1, 1e-12)
                 break
@@ -327,9 +344,11 @@ def static_update(
             message = "no step decreases the energy further"
             break
         q = q_new
-        energy, grad, H, qmax = lin
-    rho = k * (qmax - ev.aligned_targets(qmax[:, 3:]))
-    return StaticUpdateResult(q, converged, it, float(np.linalg.norm(grad)), energy, -rho, message)
+        energy, grad, H, X = lin
+    # a revolute angle and itself plus a full turn are one pose: report the one nearest the input
+    rev = ev.s.revolute_q
+    q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
+    return StaticUpdateResult(q, converged, it, float(np.linalg.norm(grad)), energy, ev.forces(X), message)
 
 
 def perturbed_targets(
