@@ -8,6 +8,10 @@ Run: python benchmarks/compile.py [--repeat N]
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only add overhead
+
 import argparse
 import statistics
 import time
@@ -54,7 +58,7 @@ def main() -> None:
         t_parse = median_time(lambda: parse_text(text, f"{name}.kms"), args.repeat)
         t_urdf = median_time(lambda: (to_urdf(system), to_srdf(system)), args.repeat)
         t_total = median_time(lambda: kms2pin.load(text), args.repeat)
-        t_pin = t_total - t_parse - t_urdf
+        t_pin = median_time(lambda: Robot(spec, system), args.repeat) - t_urdf  # Pinocchio model, frames, SRDF
         robot = Robot(spec, system)
         q = robot.random_configuration(np.random.default_rng(0), 90)
         m, d = robot.model, robot.data

@@ -14,6 +14,10 @@ Run: python benchmarks/static_update.py [--updates 200] [--reference-updates 20]
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only add overhead
+
 import argparse
 import statistics
 import time
