@@ -45,3 +45,15 @@ def write_files_atomically(files: dict[Path, str | bytes]) -> None:
         for tmp, _ in staged:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+
+
+def write_outputs(files: dict[Path, str | bytes], out: Path) -> None:
+    """Write ``files`` atomically (all or nothing) and print their paths."""
+    from ..errors import ExportError
+
+    try:
+        write_files_atomically(files)
+    except OSError as err:
+        raise ExportError(f"cannot write to {out}: {err.strerror or err}") from None
+    for path in files:
+        print(os.fspath(path))

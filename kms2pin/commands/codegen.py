@@ -5,11 +5,9 @@ C (<system>_constraints.h/.c) or Python (<system>_constraints.py) code, derived 
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from ..errors import ExportError
-from ._common import add_spec_argument, read_model, write_files_atomically
+from ._common import add_spec_argument, read_model, write_outputs
 
 NAME = "codegen"
 HELP = "generate C or Python code for the constraints C(q) and their Jacobian C_q"
@@ -44,10 +42,5 @@ def run(args: argparse.Namespace) -> int:
             files[out / f"{stem}.c"] = source
         else:
             files[out / f"{stem}.py"] = generate_python(model)
-    try:
-        write_files_atomically(files)
-    except OSError as err:
-        raise ExportError(f"cannot write to {out}: {err.strerror or err}") from None
-    for path in files:
-        print(os.fspath(path))
+    write_outputs(files, out)
     return 0

@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from ..errors import ExportError
 from ..mesh import MESH_NAME, sphere_obj
 from ..robot import Robot
 from ..urdf import MESH_DIR
-from ._common import add_spec_argument, read_model, write_files_atomically
+from ._common import add_spec_argument, read_model, write_outputs
 
 NAME = "export"
 HELP = "compile a spec to URDF + SRDF (default output folder urdf_out/)"
@@ -33,10 +31,5 @@ def run(args: argparse.Namespace) -> int:
         robot = Robot(spec, system, args.root)  # loading in Pinocchio validates the URDF
         files[out / f"{system.name}.urdf"] = robot.urdf
         files[out / f"{system.name}.srdf"] = robot.srdf
-    try:
-        write_files_atomically(files)
-    except OSError as err:
-        raise ExportError(f"cannot write to {out}: {err.strerror or err}") from None
-    for path in files:
-        print(os.fspath(path))
+    write_outputs(files, out)
     return 0
