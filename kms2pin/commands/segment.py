@@ -1,0 +1,88 @@
+"""Figure-ground segmentation of a static-camera video (thesis §2.1.2) by adaptive
+background subtraction: writes DIR/frame_NNNNN.png (0 background / 255 subject),
+one per frame, ready for `kms2pin track --masks DIR`.
+
+VIDEO is a video file (anything OpenCV/FFmpeg reads) or a folder of images
+(natural name order, all of one size).  The background model is trained on
+--learn-frames frames spread over the whole video (read twice; default) or on
+the first ones (--learn-from start); either way every frame, the learning frames
+included, gets a mask from the trained model.  Each mask is cleaned: shadows
+dropped, opening then closing with small elliptical kernels, blobs smaller
+than --min-blob-area removed, holes inside the silhouette filled.
+
+A truncated or corrupt video is segmented up to the last readable frame, with
+a warning naming where it stopped; a video with no readable frame is an error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+from ..errors import InputDataError
+from ..video.io import MASK_NAME, open_frames, write_mask
+from ..video.segmentation import DEFAULT_METHOD, DEFAULT_THRESHOLD, LEARN_FROM, METHODS, SegmentParams, _segment_u8
+
+NAME = "segment"
+HELP = "video (or image folder) -> figure-ground masks by adaptive background subtraction"
+_MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("video", metavar="VIDEO", help="video file, or a folder of images")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder for frame_NNNNN.png masks")
+    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                   help=f"OpenCV background model (default: {DEFAULT_METHOD})")
+    p.add_argument("--learn-frames", type=int, default=30, metavar="N",
+                   help="frames that train the background model (default: 30; 0: learn online only)")
+    p.add_argument("--learn-from", choices=LEARN_FROM, default="spread",
+                   help="'spread': learning frames spread over the whole video (default); 'start': the first ones")
+    p.add_argument("--threshold", type=float, metavar="T",
+                   help="foreground threshold: MOG2 varThreshold (squared Mahalanobis distance, default "
+                        f"{DEFAULT_THRESHOLD['mog2']:g}) or KNN dist2Threshold (squared distance in grey levels, "
+                        f"default {DEFAULT_THRESHOLD['knn']:g}); larger = fewer foreground pixels")
+    p.add_argument("--history", type=int, default=500, metavar="N",
+                   help="adaptation time scale in frames; learning rate 1/N after learning (default: 500)")
+    p.add_argument("--min-blob-area", type=int, metavar="PX",
+                   help="drop foreground blobs smaller than this (default: 0.1%% of the image)")
+    p.add_argument("--keep-holes", action="store_true", help="do not fill holes inside the silhouette")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    params = SegmentParams(
+        method=args.method, learn_frames=args.learn_frames, learn_from=args.learn_from, history=args.history,
+        threshold=args.threshold, min_blob_area=args.min_blob_area, fill_holes=not args.keep_holes,
+    )
+    params.check()
+    source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
+    out = Path(args.output)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputDataError(f"{out}: cannot create the output folder: {e.strerror or e}") from None
+    if params.learn_from == "spread" and params.learn_frames > 0 and not args.no_progress:
+        print(f"{args.video}: learning the background from {params.learn_frames} frames ...", file=sys.stderr)
+    n = 0
+    bar = tqdm(total=source.len_hint, unit="frame", desc="segment", disable=args.no_progress, file=sys.stderr)
+    try:
+        for n, mask in enumerate(_segment_u8(source, params), start=1):
+            try:
+                write_mask(out, n - 1, mask)
+            except OSError as e:
+                raise InputDataError(f"{out}: cannot write masks: {e.strerror or e}") from None
+            bar.update(1)
+    finally:
+        bar.close()
+    stale = [p for p in out.iterdir() if (m := _MASK_RE.match(p.name)) and int(m.group(1)) >= n]
+    for p in stale:
+        p.unlink()
+    if source.stopped_early:
+        print(f"kms2pin segment: warning: {source.stopped_early}; masks written for those frames", file=sys.stderr)
+    extra = f" (removed {len(stale)} older mask(s) beyond the sequence)" if stale else ""
+    print(f"{out}: {n} masks {MASK_NAME.format(0)}..{MASK_NAME.format(n - 1)}{extra}")
+    return 0
