@@ -13,13 +13,20 @@ from .tracker import Trajectory
 def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory) -> dict:
     """Per-joint angle RMSE (deg), body-centre error (% of height) overall, per frame and worst.
 
+    Revolute angle errors wrap to (-180°, 180°] (a tracked angle 360° off is exact).
+
     Frames are compared in order; the shorter trajectory sets the count.
     """
     n = min(len(tracked), len(truth))
     if n == 0:
         raise InputDataError("nothing to evaluate: a trajectory is empty")
     model = robot.model
-    d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)])
+    d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)]).reshape(n, model.nv)
+    # a revolute angle is a point on the circle: compare modulo 2π, in (-π, π]
+    for jid in range(1, model.njoints):
+        j = model.joints[jid]
+        if j.nq == 1:
+            d[:, j.idx_v] = -((-d[:, j.idx_v] + np.pi) % (2 * np.pi) - np.pi)
     joints = {}
     for jid in range(1, model.njoints):
         j = model.joints[jid]
