@@ -194,6 +194,33 @@ def _moved(pose: pin.SE3, delta: np.ndarray) -> pin.SE3:
     return pin.SE3(pin.exp3(delta[3:]) @ pose.rotation, pose.translation + delta[:3])
 
 
+def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: bool):
+    """Cost sum wt r^2, gradient, Gauss-Newton matrix (6x6) and evidence of one body."""
+    cost = 0.0
+    H = np.zeros((6, 6))
+    grad = np.zeros(6)
+    evidence = 0.0
+    R, t = pose.rotation, pose.translation
+    for v in views:
+        a2, D = _geometry(v.image, R, t, inner, jac)
+        inv = 1.0 / (2.0 * v.image.delta)
+        s = sigmoid((1.0 - a2) * inv)
+        free = 1.0 - v.o
+        r = v.y - v.o - free * s
+        wt = 1.0 if v.weight is None else v.weight  # inlier responsibility
+        cost += float((wt * r) @ r)
+        if jac:
+            evidence += float((wt * free) @ (s * v.y))
+            # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
+            w = free * s * (1.0 - s) * inv
+            act = w > 1e-9
+            J = D[act] * w[act, None]  # = d r / d delta
+            Jw = J if v.weight is None else J * v.weight[act, None]
+            H += Jw.T @ J
+            grad += Jw.T @ r[act]
+    return cost, grad, H, evidence
+
+
 def fit_body(
     views: Sequence[BodyView],
     pose0: pin.SE3,
@@ -201,141 +228,56 @@ def fit_body(
     *,
     iterations: int = 3,
     damping: float = 1e-3,
+    max_step: float | None = None,
 ) -> BodyFit:
     """Refit one body's pose to its views by damped Gauss-Newton (module docstring).
 
     ``damping`` is the Tikhonov weight towards ``pose0`` relative to the largest
     curvature of the data (translations in body sizes, rotations in radians).
-    (One body of :func:`fit_bodies`.)
+    ``max_step`` caps a step (the larger of its translation, in body sizes, and its
+    rotation, in radians).
     """
+    inner = np.asarray(inner, dtype=float)
     if not views:
         return BodyFit(pose0, np.zeros((6, 6)), 0.0, 0.0)
-    return fit_bodies([views], [pose0], [np.asarray(inner, dtype=float)], iterations=iterations, damping=damping)[0]
-
-
-# --------------------------------------------------------------------------- batched
-class _Batch:
-    """Every body's views flattened into one pixel array (body-major), so that one
-    evaluation of all bodies is a fixed number of NumPy calls whatever the number
-    of bodies and cameras (a per-view loop costs a dozen calls per body per camera)."""
-
-    def __init__(self, views: Sequence[Sequence[BodyView]], inners: np.ndarray, R0=None, t0=None, band=None):
-        n = len(views)
-        self.n = n
-        self.inners = inners
-        dirs, cen, y, o, inv, wt, body, nview = [], [], [], [], [], [], [], []
-        for i, vs in enumerate(views):
-            for v in vs:
-                m = len(v.y)
-                dirs.append(v.image.dirs)
-                cen.append(np.broadcast_to(v.image.camera.centre, (m, 3)))
-                y.append(v.y)
-                o.append(v.o)
-                inv.append(np.full(m, 1.0 / (2.0 * v.image.delta)))
-                wt.append(np.ones(m) if v.weight is None else v.weight)
-                body.append(np.full(m, i, dtype=np.intp))
-            nview.append(len(vs))
-        self.has = np.array(nview) > 0
-        if not dirs:
-            self.P = 0
-            return
-        self.dirs = np.concatenate(dirs)
-        self.cen = np.concatenate(cen)
-        self.y = np.concatenate(y)
-        self.free = 1.0 - np.concatenate(o)
-        self.o = np.concatenate(o)
-        self.inv = np.concatenate(inv)
-        self.wt = np.concatenate(wt)  # 1 - outlier responsibility
-        self.body = np.concatenate(body)
-        self.P = len(self.y)
-        if band is not None:
-            # keep the edge band only: pixels with |h| >= band at the starting poses are
-            # saturated (s = 0 or 1 up to e^-band) and stay so for steps of a few pixels;
-            # their residuals are constant and their Jacobians zero
-            h = (1.0 - self._a2(R0, t0)) * self.inv
-            keep = np.flatnonzero(np.abs(h) < band)
-            for name in ("dirs", "cen", "y", "free", "o", "inv", "wt", "body"):
-                setattr(self, name, getattr(self, name)[keep])
-            self.P = len(keep)
-        counts = np.bincount(self.body, minlength=n)
-        self.start = np.r_[0, np.cumsum(counts)[:-1]]
-        self.counts = counts
-
-    def _sum(self, x: np.ndarray) -> np.ndarray:
-        """Per-body sums of a per-pixel array (P,) or (P, k)."""
-        if x.ndim == 1:
-            return np.bincount(self.body, weights=x, minlength=self.n)
-        out = np.zeros((self.n,) + x.shape[1:])
-        nz = self.counts > 0
-        out[nz] = np.add.reduceat(x, self.start[nz], axis=0)
-        return out
-
-    def _a2(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        b = self.body
-        Rb = R[b]
-        Linv = 1.0 / self.inners[b]
-        d = np.einsum("pij,pi->pj", Rb, self.dirs) * Linv
-        e = np.einsum("pij,pi->pj", Rb, self.cen - t[b]) * Linv
-        s = np.maximum(-np.einsum("pi,pi->p", e, d) / np.einsum("pi,pi->p", d, d), 0.0)
-        qp = e + s[:, None] * d
-        return np.einsum("pi,pi->p", qp, qp)
-
-    def evaluate(self, R: np.ndarray, t: np.ndarray, jac: bool, active: np.ndarray | None = None):
-        """Cost (n,), gradient (n,6), Gauss-Newton matrix (n,6,6) and evidence (n,) of
-        every body at poses (R (n,3,3), t (n,3)); inactive bodies' pixels are skipped
-        (their entries are zero)."""
-        n = self.n
-        cost, grad, H, ev = np.zeros(n), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros(n)
-        if self.P == 0:
-            return cost, grad, H, ev
-        if active is not None and not active.all():
-            sel = active[self.body]
-            idx = np.flatnonzero(sel)
-        else:
-            idx = None
-        take = (lambda a: a) if idx is None else (lambda a: a[idx])
-        b = take(self.body)
-        Rb = R[b]  # (P,3,3)
-        Linv = 1.0 / self.inners[b]
-        # body frame, scaled to the unit sphere: d' = Rᵀ d / L, e' = Rᵀ (C - t) / L
-        d = np.einsum("pij,pi->pj", Rb, take(self.dirs)) * Linv
-        e = np.einsum("pij,pi->pj", Rb, take(self.cen) - t[b]) * Linv
-        dd = np.einsum("pi,pi->p", d, d)
-        ed = np.einsum("pi,pi->p", e, d)
-        s = np.maximum(-ed / dd, 0.0)
-        qp = e + s[:, None] * d  # q' (unit-sphere frame)
-        a2 = np.einsum("pi,pi->p", qp, qp)
-        inv = take(self.inv)
-        sil = sigmoid((1.0 - a2) * inv)
-        free, y, o, wt = take(self.free), take(self.y), take(self.o), take(self.wt)
-        r = y - o - free * sil
-        rw = wt * r
-        bins = lambda x: np.bincount(b, weights=x, minlength=n)  # noqa: E731
-        cost = bins(rw * r)
-        if not jac:
-            return cost, grad, H, ev
-        ev = bins(wt * free * sil * y)
-        # g = A q* = R (q'/L);  q* × g = R ((L q') × (q'/L));  D = -2 [g, q*×g]
-        gl = qp * Linv
-        cl = np.cross(qp * self.inners[b], gl)
-        w = free * sil * (1.0 - sil) * inv * -2.0  # dr/d(a²)... times D below gives dr/dδ
-        J = np.empty((len(b), 6))
-        J[:, :3] = np.einsum("pij,pj->pi", Rb, gl)
-        J[:, 3:] = np.einsum("pij,pj->pi", Rb, cl)
-        J *= w[:, None]
-        Jw = J * wt[:, None]
-        grad = np.zeros((n, 6))
-        for k in range(6):
-            grad[:, k] = bins(Jw[:, k] * r)
-        if idx is None:
-            starts, counts = self.start, self.counts
-        else:
-            counts = np.bincount(b, minlength=n)
-            starts = np.r_[0, np.cumsum(counts)[:-1]]
-        for i in np.flatnonzero(counts):
-            sl = slice(starts[i], starts[i] + counts[i])
-            H[i] = Jw[sl].T @ J[sl]
-        return cost, grad, H, ev
+    size = float(np.mean(inner))
+    S = np.r_[np.full(3, size), np.ones(3)]
+    pose = pose0
+    offset = np.zeros(6)  # accumulated move from pose0 (first order in rotation)
+    cost, grad, H, evidence = _evaluate(views, pose, inner, True)
+    if not np.any(H):
+        return BodyFit(pose0, H, evidence, cost)
+    Hn = S[:, None] * H * S[None, :]
+    prior = damping * max(float(np.max(np.diag(Hn))), 1e-12)
+    lam = 1e-3
+    for _ in range(iterations):
+        Hn = S[:, None] * H * S[None, :]
+        gn = S * grad + prior * offset / S
+        improved = False
+        for _ in range(6):
+            A = Hn + (prior + lam * float(np.max(np.diag(Hn)))) * np.eye(6)
+            try:
+                stepn = -np.linalg.solve(A, gn)
+            except np.linalg.LinAlgError:
+                break
+            if max_step is not None:
+                big = max(np.linalg.norm(stepn[:3]), np.linalg.norm(stepn[3:]))
+                stepn *= min(1.0, max_step / max(big, 1e-300))
+            step = stepn * S
+            cand = _moved(pose, step)
+            c2, g2, H2, e2 = _evaluate(views, cand, inner, True)
+            new_off = offset + step
+            p_old = 0.5 * prior * float(np.sum((offset / S) ** 2))
+            p_new = 0.5 * prior * float(np.sum((new_off / S) ** 2))
+            if 0.5 * c2 + p_new <= 0.5 * cost + p_old:
+                pose, offset, cost, grad, H, evidence = cand, new_off, c2, g2, H2, e2
+                lam = max(lam * 0.3, 1e-6)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            break
+    return BodyFit(pose, H, evidence, cost)
 
 
 def fit_bodies(
@@ -346,73 +288,10 @@ def fit_bodies(
     iterations: int = 3,
     damping: float = 1e-3,
     max_step: float | None = None,
-    band: float | None = 3 * H_CUT,
 ) -> list[BodyFit]:
-    """:func:`fit_body` for every body at once (``views[i]`` are body i's views).
-
-    The same damped Gauss-Newton per body, but each Gauss-Newton step evaluates all
-    bodies in one batch and solves their 6x6 systems together; a body whose step is
-    rejected retries with more damping while the others wait.  ``max_step`` caps a
-    body's step per iteration (translation in body sizes, rotation in radians;
-    the larger of the two norms).  ``band``: only pixels with ``|h| < band`` at the
-    starting poses are evaluated (the edge band; the others are saturated, constant
-    residual and no gradient, while the body moves a few edge widths); None: all.
-    The cost reported is then the band's.
-    """
-    n = len(poses0)
-    inners = np.asarray(inners, dtype=float).reshape(n, 3)
-    R = np.array([p.rotation for p in poses0]).reshape(n, 3, 3)
-    t = np.array([p.translation for p in poses0]).reshape(n, 3)
-    batch = _Batch(views, inners, R, t, band)
-    cost, grad, H, ev = batch.evaluate(R, t, True)
-    size = inners.mean(axis=1)
-    S = np.concatenate([np.repeat(size[:, None], 3, 1), np.ones((n, 3))], axis=1)  # (n,6)
-    Hn = S[:, :, None] * H * S[:, None, :]
-    diag = np.einsum("nii->ni", Hn).max(axis=1)
-    live = batch.has & (np.abs(H).reshape(n, -1).max(axis=1) > 0)
-    prior = damping * np.maximum(diag, 1e-12)
-    lam = np.full(n, 1e-3)
-    offset = np.zeros((n, 6))
-    eye = np.eye(6)
-    for _ in range(iterations):
-        if not live.any():
-            break
-        Hn = S[:, :, None] * H * S[:, None, :]
-        dmax = np.einsum("nii->ni", Hn).max(axis=1)
-        gn = S * grad + prior[:, None] * offset / S
-        pending = live.copy()
-        for _ in range(6):
-            if not pending.any():
-                break
-            A = Hn + ((prior + lam * dmax)[:, None, None] * eye)
-            A[~pending] = eye
-            try:
-                stepn = -np.linalg.solve(A, gn[:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:
-                break
-            stepn[~pending] = 0.0
-            if max_step is not None:
-                big = np.maximum(np.linalg.norm(stepn[:, :3], axis=1), np.linalg.norm(stepn[:, 3:], axis=1))
-                stepn *= np.minimum(1.0, max_step / np.maximum(big, 1e-300))[:, None]
-            step = stepn * S
-            Rc = R.copy()
-            tc = t.copy()
-            for i in np.flatnonzero(pending):
-                Rc[i] = pin.exp3(step[i, 3:]) @ R[i]
-                tc[i] = t[i] + step[i, :3]
-            c2, g2, H2, e2 = batch.evaluate(Rc, tc, True, pending)
-            new_off = offset + step
-            p_old = 0.5 * prior * np.sum((offset / S) ** 2, axis=1)
-            p_new = 0.5 * prior * np.sum((new_off / S) ** 2, axis=1)
-            ok = pending & (0.5 * c2 + p_new <= 0.5 * cost + p_old)
-            R[ok], t[ok], offset[ok] = Rc[ok], tc[ok], new_off[ok]
-            cost[ok], grad[ok], H[ok], ev[ok] = c2[ok], g2[ok], H2[ok], e2[ok]
-            lam[ok] = np.maximum(lam[ok] * 0.3, 1e-6)
-            bad = pending & ~ok
-            lam[bad] *= 10.0
-            pending = bad
-        live &= ~pending  # a body that found no better step stops (as fit_body)
+    """:func:`fit_body` for every body (``views[i]`` are body i's views); each body is
+    fit on its own, the others held (conditional maximization)."""
     return [
-        BodyFit(pin.SE3(R[i], t[i]) if batch.has[i] else poses0[i], H[i], float(ev[i]), float(cost[i]))
-        for i in range(n)
+        fit_body(v, p, np.asarray(L, dtype=float), iterations=iterations, damping=damping, max_step=max_step)
+        for v, p, L in zip(views, poses0, inners)
     ]
