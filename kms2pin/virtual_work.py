@@ -18,6 +18,7 @@ primary pose therefore exerts no force whichever sign it was given with.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -170,17 +171,14 @@ class _Structure:
         self.strict_upper = np.triu(np.ones((nv, nv)), 1)
 
 
-_STRUCTURES: dict[int, tuple[Robot, _Structure]] = {}
+_STRUCTURES: weakref.WeakKeyDictionary[Robot, _Structure] = weakref.WeakKeyDictionary()
 
 
 def _structure(robot: Robot) -> _Structure:
-    hit = _STRUCTURES.get(id(robot))
-    if hit is None or hit[0] is not robot:
-        if len(_STRUCTURES) > 64:
-            _STRUCTURES.clear()
-        hit = (robot, _Structure(robot))
-        _STRUCTURES[id(robot)] = hit
-    return hit[1]
+    s = _STRUCTURES.get(robot)
+    if s is None:
+        s = _STRUCTURES[robot] = _Structure(robot)
+    return s
 
 
 class _Evaluator:
