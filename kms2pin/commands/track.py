@@ -1,7 +1,11 @@
 """Track a model through silhouette masks with the ECM algorithm (thesis §2.1.2).
 
 Reads DIR/camK/frame_NNNNN.png (or DIR/frame_*.png / DIR/*.png for one camera)
-and the cameras from --camera files or DIR/cameras.json.  Writes to OUT:
+and the cameras from --camera files or DIR/cameras.json; or, with --video
+(once per camera, synchronized, with one --camera each), segments the videos
+into masks (saved under OUT/masks/camK/), finds the first frame's pose itself
+(placement, coarse root-rotation search, ECM refinement; or --init) and also
+writes OUT/joint_angles.png.  Writes to OUT:
 trajectory.csv (joint angles in degrees, one row per frame, appended as it
 goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
@@ -22,7 +26,7 @@ import numpy as np
 
 from ..ecm.camera import Camera
 from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_conic
-from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
+from ..ecm.tracker import FrameResult, Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ._common import add_spec_argument, read_model
@@ -35,11 +39,20 @@ _NUM = re.compile(r"(\d+)(?=\.png$)", re.IGNORECASE)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_spec_argument(p)
-    p.add_argument("--masks", required=True, metavar="DIR", help="mask folder (camK/ sub-folders or PNGs)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--masks", metavar="DIR", help="mask folder (camK/ sub-folders or PNGs)")
+    src.add_argument("--video", action="append", metavar="VIDEO",
+                     help="video file or image folder, once per camera (synchronized); segmented into masks")
     p.add_argument("--camera", action="append", metavar="CAM.json",
                    help="camera file, once per camera in order (default: DIR/cameras.json)")
     p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
-    p.add_argument("--init", metavar="POSE.csv", help="initial pose: first row of a trajectory CSV")
+    p.add_argument("--init", metavar="POSE",
+                   help="initial pose: POSE.csv (first row of a trajectory CSV), POSE.json "
+                        '({"joints": {name: degrees}, "root": {"position": [...], "rotation": 3x3 | '
+                        '"quaternion_xyzw": [...]}}) or "auto" (found from the first frame; the default with '
+                        "--video; with --masks the default is the rest pose)")
+    p.add_argument("--method", choices=("mog2", "knn"), default="mog2",
+                   help="segmentation of --video (default mog2)")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
@@ -131,55 +144,137 @@ def _overlay(robot: Robot, cameras, masks, q) -> np.ndarray:
     return np.hstack(tiles)
 
 
+def _initial_q(args, robot: Robot):
+    """q0 from --init POSE.csv / POSE.json, or None (rest pose or "auto")."""
+    if not args.init or args.init == "auto":
+        return None
+    if not Path(args.init).exists():
+        raise FileNotFoundError(2, "no such file", args.init)
+    if args.init.lower().endswith(".json"):
+        from ..video.init import read_pose_json
+
+        return read_pose_json(robot, args.init)
+    init = Trajectory.from_csv(robot, args.init)
+    if len(init) == 0:
+        raise InputDataError(f"{args.init}: no pose rows")
+    return init.q[0]
+
+
+def _auto_init(robot: Robot, cameras, frames_masks, start: int = 0):
+    """Initial pose from the first frame (at or after ``start``) with a non-empty mask."""
+    from ..video.init import initial_pose_details
+
+    for k in range(start, len(frames_masks)):
+        masks = frames_masks[k]()
+        if any(m.any() for m in masks):
+            res = initial_pose_details(robot, cameras, masks)
+            print(f"initial pose from frame {k}: root yaw {res.yaw_deg:.0f} deg, pitch {res.pitch_deg:.0f} deg, "
+                  f"fit (IoU) {res.fit:.3f}", file=sys.stderr)
+            if res.fit < 0.5:
+                print(f"warning: the initial pose fits the first frame poorly (IoU {res.fit:.2f}); "
+                      "consider --init POSE.json", file=sys.stderr)
+            return res.q
+    raise InputDataError("every mask is empty: nothing to track (check the segmentation in OUT/masks)")
+
+
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
-    masks_dir = Path(args.masks)
-    if args.camera:
-        cameras = [Camera.from_json(c) for c in args.camera]
-    elif (masks_dir / "cameras.json").is_file():
-        cameras = Camera.list_from_json(masks_dir / "cameras.json")
-    else:
-        raise InputDataError(f"{masks_dir}: no cameras.json; give the cameras with --camera CAM.json")
-    numbers, per_cam = find_frames(masks_dir, len(cameras))
-    q0 = None
-    if args.init:
-        if not Path(args.init).exists():
-            raise FileNotFoundError(2, "no such file", args.init)
-        init = Trajectory.from_csv(robot, args.init)
-        if len(init) == 0:
-            raise InputDataError(f"{args.init}: no pose rows")
-        q0 = init.q[0]
-    tracker = Tracker(robot, cameras, q0=q0)
     out = Path(args.output)
+    video_mode = bool(args.video)
+    if video_mode:
+        if not args.camera:
+            raise InputDataError("--video needs the cameras: give one --camera CAM.json per --video, in order")
+        cameras = [Camera.from_json(c) for c in args.camera]
+        for v in args.video:
+            if not Path(v).exists():
+                raise FileNotFoundError(2, "no such file", v)
+        from ..video.io import write_mask
+        from ..video.track_video import segment_videos
+
+        per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method)
+        for note in notes:
+            print(f"note: {note}", file=sys.stderr)
+        numbers = list(range(len(per_cam_masks[0])))
+        masks_dir = out / "masks"
+        try:
+            for c, ms in enumerate(per_cam_masks):
+                d = masks_dir / f"cam{c}"
+                d.mkdir(parents=True, exist_ok=True)
+                for k, m in enumerate(ms):
+                    write_mask(d, k, m)
+        except OSError as err:
+            raise Kms2pinError(f"cannot write to {masks_dir}: {err.strerror or err}") from None
+        frame_names = [", ".join(f"{v}" for v in args.video)] * len(numbers)
+
+        def load(k: int, _pc=per_cam_masks):
+            return [pc[k] for pc in _pc]
+    else:
+        masks_dir = Path(args.masks)
+        if args.camera:
+            cameras = [Camera.from_json(c) for c in args.camera]
+        elif (masks_dir / "cameras.json").is_file():
+            cameras = Camera.list_from_json(masks_dir / "cameras.json")
+        else:
+            raise InputDataError(f"{masks_dir}: no cameras.json; give the cameras with --camera CAM.json")
+        numbers, per_cam = find_frames(masks_dir, len(cameras))
+        frame_names = [", ".join(str(pc[f]) for pc in per_cam) for f in numbers]
+
+        def load(k: int, _pc=per_cam):
+            f = numbers[k]
+            return [read_mask(pc[f], f, cam) for pc, cam in zip(_pc, cameras)]
+
+    q0 = _initial_q(args, robot)
+    auto = args.init == "auto" or (video_mode and not args.init)
+    if auto:
+        q0 = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
+    tracker = Tracker(robot, cameras, q0=q0)
     try:
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(args.spec, out / "model.kms")
-        (out / "meta.json").write_text(json.dumps({
+        meta = {
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
-        }, indent=2) + "\n")
+        }
+        if video_mode:
+            meta["videos"] = [str(v) for v in args.video]
+            meta["segmentation"] = args.method
+        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         Camera.list_to_json(cameras, out / "cameras.json")
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
 
     video = None
     qs, results = [], []
-    iterator = numbers
+    iterator = range(len(numbers))
     if not args.no_progress:
         from tqdm import tqdm
 
-        iterator = tqdm(numbers, unit="frame", desc="tracking")
+        iterator = tqdm(iterator, unit="frame", desc="tracking")
     interrupted = False
+    was_empty = False
     try:
         with TrajectoryCsvWriter(robot, out / "trajectory.csv") as csv_out:
-            for frame in iterator:
-                masks = [read_mask(pc[frame], frame, cam) for pc, cam in zip(per_cam, cameras)]
-                names = ", ".join(str(pc[frame]) for pc in per_cam)
+            for k in iterator:
+                frame = numbers[k]
+                masks = load(k)
+                names = frame_names[k]
                 r = tracker.step(masks, source=f"{names}: frame {frame}")
                 if "empty mask" in r.flags:
                     print(f"note: frame {frame}: empty mask ({names}); pose kept from the previous frame",
                           file=sys.stderr)
+                elif was_empty and auto and robot.root == "free" and r.fit < 0.5:
+                    # the subject came back somewhere else: find it again, keeping the joint angles
+                    from ..video.init import initial_pose
+
+                    q_new = initial_pose(robot, cameras, masks, q_start=r.q)
+                    tracker = Tracker(robot, cameras, q0=q_new)
+                    r2 = tracker.step(masks, source=f"{names}: frame {frame}")
+                    r = FrameResult(r2.q, r2.body_poses, r2.iterations, r2.fit, r2.converged,
+                                    r2.flags + ("reinitialized",), r2.timings)
+                    print(f"note: frame {frame}: subject back in view; pose found again (fit {r.fit:.2f})",
+                          file=sys.stderr)
+                was_empty = "empty mask" in r.flags
                 csv_out.write(frame, r)
                 qs.append(r.q)
                 results.append(r)
@@ -199,6 +294,13 @@ def run(args: argparse.Namespace) -> int:
     if interrupted:
         print(f"interrupted after {len(qs)} frame(s); outputs in {out} are complete up to there", file=sys.stderr)
         raise KeyboardInterrupt
+    if video_mode:
+        from ..video.track_video import plot_joint_angles
+
+        try:
+            plot_joint_angles(robot, np.array(qs), out / "joint_angles.png", frames=numbers[: len(qs)])
+        except Exception as err:  # noqa: BLE001 - the plot is a convenience
+            print(f"note: joint_angles.png skipped ({err})", file=sys.stderr)
     try:
         from ..viewer import write_animation_html
     except Exception as err:  # noqa: BLE001 - the viewer is optional
