@@ -12,11 +12,8 @@ ragged boundaries (edge pixels flipped with probability 4 LEVEL), holes
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..ecm.camera import Camera
@@ -25,6 +22,7 @@ from ..ecm.synth import synthesize
 from ..ecm.tracker import Trajectory
 from ..errors import Kms2pinError
 from ..robot import Robot
+from ..video.io import write_png_atomically
 from ._common import add_spec_argument, read_model
 
 NAME = "synth"
@@ -43,20 +41,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
-
-
-def write_png_atomically(path: Path, image: np.ndarray) -> None:
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:  # pragma: no cover
-        raise Kms2pinError(f"{path}: cannot encode PNG")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def run(args: argparse.Namespace) -> int:
