@@ -211,6 +211,8 @@ def run(args: argparse.Namespace) -> int:
             return [pc[k] for pc in _pc]
     else:
         masks_dir = Path(args.masks)
+        if not masks_dir.is_dir():
+            raise FileNotFoundError(2, "no such folder", str(masks_dir))
         if args.camera:
             cameras = [Camera.from_json(c) for c in args.camera]
         elif (masks_dir / "cameras.json").is_file():
