@@ -18,6 +18,7 @@ primary pose therefore exerts no force whichever sign it was given with.
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -198,6 +199,8 @@ class _Evaluator:
         self.targets = targets[:, order]
         self.k = k[:, order]
         self.sqrt_k = np.sqrt(self.k).reshape(-1, 1)
+        nz = self.k[self.k > 0]
+        self.k_scalar = float(nz[0]) if len(nz) and (self.k == nz[0]).all() else None
         self.support3 = self.s.support[:, None, :]
 
     def coordinates(self) -> np.ndarray:
@@ -230,8 +233,11 @@ class _Evaluator:
         E = (theta @ _EBASIS_XYZW).reshape(n, 4, 3)
         B = np.concatenate([Jlin, 0.5 * (E @ Jang)], axis=1).reshape(7 * n, nv)  # d q_max / d q
         grad = B.T @ rho.ravel()
-        Bk = B * self.sqrt_k
-        H = Bk.T @ Bk
+        if self.k_scalar is not None:  # the usual case: one stiffness for every coordinate
+            H = self.k_scalar * (B.T @ B)
+        else:
+            Bk = B * self.sqrt_k
+            H = Bk.T @ Bk
         if hessian:
             H += self.second_order(rho, theta, E, Jlin, Jang)
         return energy, grad, H, X
@@ -312,15 +318,14 @@ def static_update(
     converged = False
     message = "iteration limit reached"
     while True:
-        gnorm = float(np.linalg.norm(grad))
-        if gnorm <= tol:
+        if math.sqrt(grad @ grad) <= tol:
             converged, message = True, "||B^T Q|| below tolerance"
             break
         if it >= max_iter:
             break
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
-        scale = max(float(H.diagonal().max()), 1e-12)
+        scale = max(H.diagonal().max(), 1e-12)
         accepted = False
         for _ in range(40):
             try:
@@ -346,7 +351,7 @@ def static_update(
     # a revolute angle and itself plus a full turn are one pose: report the one nearest the input
     rev = ev.s.revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
-    return StaticUpdateResult(q, converged, it, float(np.linalg.norm(grad)), energy, ev.forces(X), message)
+    return StaticUpdateResult(q, converged, it, math.sqrt(grad @ grad), energy, ev.forces(X), message)
 
 
 def perturbed_targets(
