@@ -159,12 +159,6 @@ def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, j
     return a2, D
 
 
-def silhouette(img: BodyImage, pose: pin.SE3, inner: np.ndarray) -> np.ndarray:
-    """Sharp silhouette ``s = σ((1 - a²) / 2δ)`` on the region's pixels (N,)."""
-    a2, _ = _geometry(img, pose.rotation, pose.translation, np.asarray(inner, float), False)
-    return sigmoid((1.0 - a2) / (2.0 * img.delta))
-
-
 @dataclass(frozen=True)
 class BodyView:
     """What one camera says about one body: its region, the mask ``y`` there,

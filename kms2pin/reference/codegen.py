@@ -29,8 +29,8 @@ def _index(sym: sp.Symbol) -> int | None:
     return int(m.group(1)) if m else None
 
 
-class _CPrinter(C99CodePrinter):
-    """q<k> -> q[k]; floats as the shortest exact decimal; x**2 -> x*x."""
+class _QPrinting:
+    """q<k> -> q[k]; floats as the shortest exact decimal; x**2 -> x*x (C and Python)."""
 
     def _print_Symbol(self, expr):
         k = _index(expr)
@@ -46,19 +46,12 @@ class _CPrinter(C99CodePrinter):
         return super()._print_Pow(expr)
 
 
-class _PyPrinter(PythonCodePrinter):
-    def _print_Symbol(self, expr):
-        k = _index(expr)
-        return f"q[{k}]" if k is not None else super()._print_Symbol(expr)
+class _CPrinter(_QPrinting, C99CodePrinter):
+    pass
 
-    def _print_Float(self, expr):
-        return repr(float(expr))
 
-    def _print_Pow(self, expr):
-        if expr.exp == 2:
-            b = self.parenthesize(expr.base, sp.printing.precedence.PRECEDENCE["Mul"])
-            return f"{b}*{b}"
-        return super()._print_Pow(expr)
+class _PyPrinter(_QPrinting, PythonCodePrinter):
+    pass
 
 
 def _c_comment(text: str) -> str:
