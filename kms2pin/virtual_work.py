@@ -19,6 +19,7 @@ primary pose therefore exerts no force whichever sign it was given with.
 from __future__ import annotations
 
 import math
+import os
 import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -28,6 +29,15 @@ import pinocchio as pin
 
 from .errors import TargetError, did_you_mean
 from .robot import Robot
+
+try:  # the optional C kernels (kms2pin/_kernels.c); the NumPy code below is the fallback
+    from . import _kernels
+except ImportError:  # pragma: no cover - installs without a C compiler
+    _kernels = None
+
+#: Whether the static update runs its per-iteration arithmetic in the native kernel
+#: (set ``KMS2PIN_NATIVE=0`` in the environment to force the NumPy code).
+NATIVE = _kernels is not None and os.environ.get("KMS2PIN_NATIVE", "1") != "0"
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -91,6 +101,9 @@ def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
                 f"'{robot.system.name}', not shape {out.shape}"
             )
         mask = np.ones(n, dtype=bool)
+        n2 = np.einsum("ij,ij->i", out[:, 3:], out[:, 3:])
+        if ((n2 >= _UNIT_LO) & (n2 <= _UNIT_HI)).all() and np.isfinite(out[:, :3]).all():
+            return out, mask  # the usual case: every target finite and unit (NaN fails the test)
     finite = np.isfinite(out).all(axis=1)
     norms = np.sqrt(np.einsum("ij,ij->i", out[:, 3:], out[:, 3:]))
     bad = mask & (~finite | (np.abs(norms - 1.0) > 1e-6))
@@ -106,9 +119,17 @@ def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
     return out, mask
 
 
+_UNIT_LO, _UNIT_HI = (1.0 - 1e-6) ** 2, (1.0 + 1e-6) ** 2  # squared norms within 1e-6 of unit
+
+
 def stiffness_array(robot: Robot, stiffness, mask: np.ndarray | None = None) -> np.ndarray:
     """k as an (n, 7) array from a scalar, a per-body (n,) vector or an (n, 7) array."""
     n = len(robot.bodies)
+    if isinstance(stiffness, (int, float)) and math.isfinite(stiffness) and stiffness >= 0:
+        k = np.full((n, 7), float(stiffness))  # the usual case: one scalar
+        if mask is not None and not mask.all():
+            k[~mask] = 0.0
+        return k
     k = np.asarray(stiffness, dtype=float)
     if k.ndim == 0:
         k = np.full((n, 7), float(k))
@@ -164,6 +185,10 @@ class _Structure:
         # Hessian entries (a <= b) pair an ancestor column a with a descendant b; the
         # columns of one multi-DoF joint (the free flyer) take the symmetric average.
         self.same_joint = col_joint[:, None] == col_joint[None, :]
+        self.same_joint_f = self.same_joint.astype(float)  # the native kernel's form
+        # each body frame as (parent joint, fixed placement in it), for the native kernel
+        self.frame_joint = np.array([float(model.frames[f].parentJoint) for f in robot.frame_ids])
+        self.frame_offset = np.array([pin.SE3ToXYZQUAT(model.frames[f].placement) for f in robot.frame_ids])
         self.revolute_q = np.array(
             [model.joints[j].idx_q for j in range(1, model.njoints) if model.joints[j].nq == 1], dtype=int
         )
@@ -190,14 +215,17 @@ class _Evaluator:
     not depend on that order nor on the quaternions' signs.
     """
 
-    def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray):
+    def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray, native: bool | None = None):
         self.model, self.data = robot.model, robot.data
         self.frames = robot.frame_ids
         self.n = len(self.frames)
         self.s = _structure(robot)
+        self.native = NATIVE if native is None else (bool(native) and _kernels is not None)
         order = [0, 1, 2, 4, 5, 6, 3]  # [mu, theta0..3] -> [mu, x, y, z, w]
         self.targets = targets[:, order]
         self.k = k[:, order]
+        if self.native:
+            return
         self.sqrt_k = np.sqrt(self.k).reshape(-1, 1)
         nz = self.k[self.k > 0]
         self.k_scalar = float(nz[0]) if len(nz) and (self.k == nz[0]).all() else None
@@ -218,7 +246,23 @@ class _Evaluator:
 
     def linearize(self, q: np.ndarray, hessian: bool = True):
         """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, internal coords."""
+        return self.linearize_full(q, hessian)[:4]
+
+    def linearize_full(self, q: np.ndarray, hessian: bool = True):
+        """:meth:`linearize` plus the aligned residual q_max - q', ||grad||^2 and max diag H."""
         pin.computeJointJacobians(self.model, self.data, q)
+        if self.native:  # the same arithmetic in C calls (kms2pin/_kernels.c)
+            # body frames = joint placements (one Pinocchio call for all) * fixed offsets
+            X = np.empty((self.n, 7))
+            _kernels.frame_coordinates(
+                [pin.SE3ToXYZQUAT(M) for M in self.data.oMi.tolist()], self.s.frame_joint, self.s.frame_offset, X
+            )
+            nv = self.model.nv
+            grad, H, diff = np.empty(nv), np.empty((nv, nv)), np.empty((self.n, 7))
+            energy, gsq, hmax = _kernels.linearize(
+                self.data.J, X, self.targets, self.k, self.s.support, self.s.same_joint_f, grad, H, diff, hessian
+            )
+            return energy, grad, H, X, diff, gsq, hmax
         pin.updateFramePlacements(self.model, self.data)
         X = self.coordinates()
         p, theta = X[:, :3], X[:, 3:]
@@ -240,7 +284,7 @@ class _Evaluator:
             H = Bk.T @ Bk
         if hessian:
             H += self.second_order(rho, theta, E, Jlin, Jang)
-        return energy, grad, H, X
+        return energy, grad, H, X, diff, float(grad @ grad), float(H.diagonal().max())
 
     def second_order(self, rho, theta, E, Jlin, Jang) -> np.ndarray:
         """sum_i rho_i . d^2 q_max,i / dq_a dq_b (the Newton term Gauss-Newton drops).
@@ -260,16 +304,18 @@ class _Evaluator:
             A = np.where(self.s.same_joint, 0.5 * (A + A.T), A)
         return A * self.s.upper + (A * self.s.strict_upper).T
 
-    def forces(self, X: np.ndarray) -> np.ndarray:
+    def forces(self, X: np.ndarray, diff: np.ndarray | None = None) -> np.ndarray:
         """Spring forces k (q' - q) (eq. 2.33), (n, 7) in the [mu, theta0..3] layout,
-        with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates."""
-        sign = np.where(X[:, 6] < 0, -1.0, 1.0)[:, None]
-        F = -(self.k * self.residual(X))
-        F[:, 3:] *= sign
-        return F[:, [0, 1, 2, 6, 3, 4, 5]]
+        with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates.
+        ``diff`` is the aligned residual at X if already known."""
+        F = (self.k * (self.residual(X) if diff is None else diff))[:, _TO_THESIS]
+        F[X[:, 6] >= 0] *= -1.0  # -k diff, Euler parameters' sign flipped with theta0 < 0
+        F[X[:, 6] < 0, :3] *= -1.0
+        return F
 
 
 _DIAG = np.arange(3)
+_TO_THESIS = [0, 1, 2, 6, 3, 4, 5]  # [mu, x, y, z, w] -> [mu, theta0..3]
 # E for (x, y, z, w): the same rows and input components, reordered
 _EBASIS_XYZW = _EBASIS.reshape(4, 4, 3)[[1, 2, 3, 0]][:, [1, 2, 3, 0]].reshape(4, 12)
 
@@ -311,33 +357,40 @@ def static_update(
     ev = _Evaluator(robot, tgt, k)
     nv = robot.model.nv
     eye = np.eye(nv)
+    step = np.empty(nv)
 
-    energy, grad, H, X = ev.linearize(q)
+    energy, grad, H, X, diff, gsq, hmax = ev.linearize_full(q)
     lam = 1e-8
     it = 0
     converged = False
     message = "iteration limit reached"
+    tol2 = tol * tol
     while True:
-        if math.sqrt(grad @ grad) <= tol:
+        if gsq <= tol2:
             converged, message = True, "||B^T Q|| below tolerance"
             break
         if it >= max_iter:
             break
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
-        scale = max(H.diagonal().max(), 1e-12)
+        scale = max(hmax, 1e-12)
         accepted = False
         for _ in range(40):
-            try:
-                step = np.linalg.solve(H + (lam * scale) * eye, -grad)
-            except np.linalg.LinAlgError:
-                lam = max(lam * 10.0, 1e-8)
-                continue
+            if ev.native:  # Cholesky: fails exactly when H + lam I is not positive definite
+                if not _kernels.solve_shifted(H, grad, lam * scale, step):
+                    lam = max(lam * 10.0, 1e-8)
+                    continue
+            else:
+                try:
+                    step = np.linalg.solve(H + (lam * scale) * eye, -grad)
+                except np.linalg.LinAlgError:
+                    lam = max(lam * 10.0, 1e-8)
+                    continue
             if not step @ grad < 0:  # not a descent direction: H + lam I is not positive definite
                 lam = max(lam * 10.0, 1e-8)
                 continue
             q_new = pin.integrate(robot.model, q, step)
-            lin = ev.linearize(q_new)
+            lin = ev.linearize_full(q_new)
             if lin[0] <= energy + 1e-15 * max(1.0, energy):
                 accepted = True
                 lam = max(lam * 0.1, 1e-12)
@@ -347,11 +400,11 @@ def static_update(
             message = "no step decreases the energy further"
             break
         q = q_new
-        energy, grad, H, X = lin
+        energy, grad, H, X, diff, gsq, hmax = lin
     # a revolute angle and itself plus a full turn are one pose: report the one nearest the input
     rev = ev.s.revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
-    return StaticUpdateResult(q, converged, it, math.sqrt(grad @ grad), energy, ev.forces(X), message)
+    return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
 
 
 def perturbed_targets(

@@ -70,7 +70,7 @@ def fd_gradient(r, q, f, h=1e-6):
 
 
 @pytest.mark.parametrize("name,root", CASES)
-def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root):
+def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root, backend):
     r = robot(name, root)
     rng = np.random.default_rng(1)
     for _ in range(5):
@@ -85,7 +85,7 @@ def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root):
 
 
 @pytest.mark.parametrize("name,root", CASES)
-def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root):
+def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root, backend):
     """B^T Q = 0 (eq. 2.28) checked without the solver's Jacobian: the finite-difference
     gradient of the independently computed energy vanishes at the result."""
     r = robot(name, root)
@@ -107,7 +107,7 @@ def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root)
 
 
 @pytest.mark.parametrize("name,root", [("fullbody", "spec"), ("jplhand", "free"), ("puma600", "free")])
-def test_gradient_and_newton_hessian_match_finite_differences(name, root):
+def test_gradient_and_newton_hessian_match_finite_differences(name, root, backend):
     r = robot(name, root)
     rng = np.random.default_rng(3)
     q = r.random_configuration(rng, 120)
@@ -222,7 +222,7 @@ def test_malformed_targets_and_stiffness_are_rejected_with_clear_messages():
         static_update(r, r.q_rest, t, stiffness=-1.0)
 
 
-def test_a_non_converging_update_returns_its_diagnostics_instead_of_raising():
+def test_a_non_converging_update_returns_its_diagnostics_instead_of_raising(backend):
     r = robot("jplhand")
     rng = np.random.default_rng(8)
     q = r.random_configuration(rng, 90)
@@ -232,3 +232,22 @@ def test_a_non_converging_update_returns_its_diagnostics_instead_of_raising():
     assert not res.converged and res.iterations == 1
     assert res.residual > 1e-9 and "limit" in res.message
     assert np.isfinite(res.energy) and res.forces.shape == (len(r.bodies), 7)
+
+
+def test_native_kernel_rejects_malformed_arrays_instead_of_crashing():
+    from kms2pin import virtual_work
+
+    if virtual_work._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    k = virtual_work._kernels
+    J, X = np.zeros((6, 4)), np.zeros((3, 7))
+    with pytest.raises(ValueError, match="wrong shape"):
+        k.linearize(J, X, np.zeros((2, 7)), np.zeros((3, 7)), np.zeros((3, 4)), np.zeros((4, 4)),
+                    np.zeros(4), np.zeros((4, 4)), np.zeros((3, 7)), True)
+    with pytest.raises(TypeError, match="float64"):
+        k.linearize(J.astype(np.float32), X, X, X, np.zeros((3, 4)), np.zeros((4, 4)),
+                    np.zeros(4), np.zeros((4, 4)), np.zeros((3, 7)), True)
+    assert k.solve_shifted(-np.eye(3), np.ones(3), 0.0, np.zeros(3)) is False  # not positive definite
+    step = np.zeros(3)
+    assert k.solve_shifted(np.diag([1.0, 2.0, 4.0]), np.ones(3), 0.0, step) is True
+    np.testing.assert_allclose(step, [-1.0, -0.5, -0.25])

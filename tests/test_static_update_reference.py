@@ -24,7 +24,7 @@ def same_up_to_quaternion_sign(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("name,root", CASES)
-def test_fast_path_and_reference_reach_the_same_equilibrium(name, root):
+def test_fast_path_and_reference_reach_the_same_equilibrium(name, root, backend):
     robot = kms2pin.load(SPECS / f"{name}.kms", root=root)
     sym = reference.symbolic_model(robot.system, root)
     rng = np.random.default_rng(11)

@@ -1,0 +1,19 @@
+"""Build the optional native kernels of the static update (kms2pin/_kernels.c).
+
+Everything else is configured in pyproject.toml.  The extension is optional: without a
+C compiler the install still succeeds and kms2pin uses its NumPy code instead
+(``kms2pin.virtual_work.NATIVE`` says which is in use).
+"""
+
+from setuptools import Extension, setup
+
+setup(
+    ext_modules=[
+        Extension(
+            "kms2pin._kernels",
+            sources=["kms2pin/_kernels.c"],
+            extra_compile_args=["-O2"],
+            optional=True,
+        )
+    ]
+)
