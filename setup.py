@@ -12,7 +12,7 @@ setup(
         Extension(
             "kms2pin._kernels",
             sources=["kms2pin/_kernels.c"],
-            extra_compile_args=["-O2"],
+            extra_compile_args=["-O3"],
             optional=True,
         )
     ]

@@ -1,4 +1,4 @@
-/* Native kernels of the static update (thesis §2.3), optional.
+/* Native kernels of the static update (thesis §2.3) and of the ECM M-step, optional.
  *
  * kms2pin.virtual_work builds the virtual-work equilibrium on Pinocchio's joint
  * Jacobians; its per-iteration arithmetic (maximal coordinates -> springs ->
@@ -397,11 +397,175 @@ static PyObject *solve_shifted(PyObject *self, PyObject *const *args, Py_ssize_t
     return PyBool_FromLong(ok);
 }
 
+/* ------------------------------------------------------------------ ECM M-step
+ * Per-pixel arithmetic of kms2pin.ecm.mstep (its module docstring has the model):
+ * for pixel rays d (unit camera depth, world axes), the closest approach of the
+ * ray to the inner ellipsoid in the ellipsoid metric, a^2, and its derivative
+ * with respect to a world translation and rotation of the body.  A = R diag(L^-2) R^T,
+ * e = camera centre - body centre. */
+
+/* |h| beyond which the logistic edge counts as saturated: kms2pin.ecm.mstep.H_CUT */
+#define H_CUT 7.0
+
+static inline double closest_a2(const double *A, const double *e, const double *Ae, const double *d, double *qs,
+                                double *g)
+{
+    double Ad[3];
+    for (int r = 0; r < 3; r++) Ad[r] = A[3 * r] * d[0] + A[3 * r + 1] * d[1] + A[3 * r + 2] * d[2];
+    double dot = dot3(d, Ae), nn = dot3(Ad, d);
+    double s = nn > 0.0 ? -dot / nn : 0.0;
+    if (s < 0.0) s = 0.0;
+    for (int c = 0; c < 3; c++) {
+        qs[c] = e[c] + s * d[c];
+        g[c] = Ae[c] + s * Ad[c];
+    }
+    return dot3(qs, g);
+}
+
+static int vec_arg(PyObject *obj, Buf *b, Py_ssize_t n, int writable, const char *name)
+{
+    if (get_buf(obj, b, writable, name) < 0) return -1;
+    if (b->view.ndim != 1 || (n >= 0 && b->view.shape[0] != n)) {
+        PyErr_Format(PyExc_ValueError, "%s has the wrong shape", name);
+        return -1;
+    }
+    return 0;
+}
+
+#define V(b, i) (*(double *)((char *)(b).view.buf + (i) * (b).view.strides[0]))
+
+static int small_args(PyObject *Aobj, PyObject *eobj, double *A, double *e)
+{
+    Buf a, v;
+    memset(&a, 0, sizeof(a));
+    memset(&v, 0, sizeof(v));
+    if (get_buf(Aobj, &a, 0, "A") < 0 || check_2d(&a, 3, 3, "A") || vec_arg(eobj, &v, 3, 0, "e") < 0) {
+        release(&a, 1);
+        release(&v, 1);
+        return -1;
+    }
+    for (int r = 0; r < 3; r++) {
+        e[r] = V(v, r);
+        for (int c = 0; c < 3; c++) A[3 * r + c] = AT(a, r, c);
+    }
+    release(&a, 1);
+    release(&v, 1);
+    return 0;
+}
+
+/* ellipsoid_a2(dirs, A, e, out): a^2 of every ray (out (N,)). */
+static PyObject *ellipsoid_a2(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "ellipsoid_a2(dirs, A, e, out)");
+        return NULL;
+    }
+    double A[9], e[3], Ae[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    Buf b[2];
+    memset(b, 0, sizeof(b));
+    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs") ||
+        vec_arg(args[3], &b[1], b[0].view.shape[0], 1, "out") < 0) {
+        release(b, 2);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    Py_ssize_t N = b[0].view.shape[0];
+    for (Py_ssize_t i = 0; i < N; i++) {
+        double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+        V(b[1], i) = closest_a2(A, e, Ae, d, qs, g);
+    }
+    release(b, 2);
+    Py_RETURN_NONE;
+}
+
+/* silhouette_fit(dirs, A, e, inv, y, o, weight|None, jac, H, grad) -> (cost, evidence)
+ * For the sharp silhouette s = sigma((1 - a^2) inv) of one body in one view:
+ * r = y - o - (1 - o) s, cost = sum wt r^2, evidence = sum wt (1 - o) s y; with jac,
+ * adds J^T wt J to H (6x6) and J^T wt r to grad (6), J = dr/d(delta t, omega) over
+ * the pixels on the edge, |h| < H_CUT, h = (1 - a^2) inv. */
+static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_fit takes 10 arguments");
+        return NULL;
+    }
+    double A[9], e[3], Ae[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    double inv = PyFloat_AsDouble(args[3]);
+    if (inv == -1.0 && PyErr_Occurred()) return NULL;
+    int jac = PyObject_IsTrue(args[7]);
+    if (jac < 0) return NULL;
+    int has_w = args[6] != Py_None;
+    Buf b[6];
+    memset(b, 0, sizeof(b));
+    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs")) {
+        release(b, 6);
+        return NULL;
+    }
+    Py_ssize_t N = b[0].view.shape[0];
+    if (vec_arg(args[4], &b[1], N, 0, "y") < 0 || vec_arg(args[5], &b[2], N, 0, "o") < 0 ||
+        (has_w && vec_arg(args[6], &b[3], N, 0, "weight") < 0) || get_buf(args[8], &b[4], 1, "H") < 0 ||
+        check_2d(&b[4], 6, 6, "H") || vec_arg(args[9], &b[5], 6, 1, "grad") < 0) {
+        release(b, 6);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    double cost = 0.0, evidence = 0.0, H[21] = {0}, grad[6] = {0};
+    for (Py_ssize_t i = 0; i < N; i++) {
+        double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+        double a2 = closest_a2(A, e, Ae, d, qs, g);
+        double h = (1.0 - a2) * inv;
+        /* s = sigma(h) and 1 - s = sigma(-h) from one exp, without overflow */
+        double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+        double s = h >= 0 ? s1 : s0;
+        double y = V(b[1], i), o = V(b[2], i), wt = has_w ? V(b[3], i) : 1.0;
+        double fr = 1.0 - o;
+        double r = y - o - fr * s;
+        cost += wt * r * r;
+        if (!jac) continue;
+        evidence += wt * fr * s * y;
+        if (!(fabs(h) < H_CUT)) continue; /* saturated edge: no gradient */
+        double w = fr * s0 * s1 * inv;
+        if (!(w > 0.0)) continue;
+        double J[6], qxg[3];
+        cross(qs, g, qxg);
+        for (int c = 0; c < 3; c++) {
+            J[c] = -2.0 * g[c] * w;
+            J[3 + c] = -2.0 * qxg[c] * w;
+        }
+        int k = 0;
+        for (int a = 0; a < 6; a++) {
+            double ja = wt * J[a];
+            grad[a] += ja * r;
+            for (int c = a; c < 6; c++) H[k++] += ja * J[c];
+        }
+    }
+    if (jac) {
+        int k = 0;
+        for (int a = 0; a < 6; a++) {
+            V(b[5], a) += grad[a];
+            for (int c = a; c < 6; c++, k++) {
+                AT(b[4], a, c) += H[k];
+                if (c != a) AT(b[4], c, a) += H[k];
+            }
+        }
+    }
+    release(b, 6);
+    return Py_BuildValue("(dd)", cost, evidence);
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
     {"frame_coordinates", (PyCFunction)(void (*)(void))frame_coordinates, METH_FASTCALL,
      "frame_coordinates(rows, joints, offsets, out): out[i] = rows[joints[i]] * offsets[i] (XYZQUAT)"},
+    {"ellipsoid_a2", (PyCFunction)(void (*)(void))ellipsoid_a2, METH_FASTCALL,
+     "ellipsoid_a2(dirs, A, e, out): closest approach a^2 of every ray to the ellipsoid"},
+    {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,
+     "silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> (cost, evidence)"},
     {"stack_rows", (PyCFunction)(void (*)(void))stack_rows, METH_FASTCALL,
      "stack_rows(rows, out): copy a list of n float64 vectors into out (n, m)"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
@@ -410,6 +574,6 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "_kernels", "Native static-update kernels.", -1, methods, NULL, NULL, NULL, NULL};
+    PyModuleDef_HEAD_INIT, "_kernels", "Native kernels of the static update and the ECM M-step.", -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__kernels(void) { return PyModule_Create(&module); }

@@ -19,7 +19,6 @@ primary pose therefore exerts no force whichever sign it was given with.
 from __future__ import annotations
 
 import math
-import os
 import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -28,16 +27,13 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import TargetError, did_you_mean
+from .native import ENABLED as _NATIVE_ENABLED
+from .native import kernels as _kernels
 from .robot import Robot
 
-try:  # the optional C kernels (kms2pin/_kernels.c); the NumPy code below is the fallback
-    from . import _kernels
-except ImportError:  # pragma: no cover - installs without a C compiler
-    _kernels = None
-
-#: Whether the static update runs its per-iteration arithmetic in the native kernel
-#: (set ``KMS2PIN_NATIVE=0`` in the environment to force the NumPy code).
-NATIVE = _kernels is not None and os.environ.get("KMS2PIN_NATIVE", "1") != "0"
+#: Whether the static update runs its per-iteration arithmetic in the C kernels
+#: (:mod:`kms2pin.native`; ``KMS2PIN_NATIVE=0`` forces the NumPy code below).
+NATIVE = _NATIVE_ENABLED
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 

@@ -57,8 +57,14 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from ..native import ENABLED as _NATIVE_ENABLED
+from ..native import kernels as _kernels
 from .camera import Camera
 from .projection import BBox, body_bbox
+
+#: Whether the per-pixel arithmetic runs in the C kernels (:mod:`kms2pin.native`);
+#: the NumPy code below is the fallback and the definition.
+NATIVE = _NATIVE_ENABLED
 
 #: ``h`` beyond which the logistic edge counts as saturated (σ(-7) < 1e-3).
 H_CUT = 7.0
@@ -141,6 +147,10 @@ def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, j
     """``a²`` per pixel and, if ``jac``, its derivative -2 [g, q*×g] (N, 6) (module docstring)."""
     A = (R / inner**2) @ R.T
     e = img.camera.centre - t
+    if NATIVE and not jac:
+        a2 = np.empty(len(img.dirs))
+        _kernels.ellipsoid_a2(img.dirs, A, e, a2)
+        return a2, None
     Ae = A @ e
     d = img.dirs
     Ad = d @ A
@@ -195,10 +205,21 @@ def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: 
     grad = np.zeros(6)
     evidence = 0.0
     R, t = pose.rotation, pose.translation
+    if NATIVE:  # the loop below, per pixel in C (kms2pin/_kernels.c)
+        A = (R / inner**2) @ R.T
+        for v in views:
+            c, e = _kernels.silhouette_fit(
+                v.image.dirs, A, v.image.camera.centre - t, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight, jac, H,
+                grad,
+            )
+            cost += c
+            evidence += e
+        return cost, grad, H, evidence
     for v in views:
         a2, D = _geometry(v.image, R, t, inner, jac)
         inv = 1.0 / (2.0 * v.image.delta)
-        s = sigmoid((1.0 - a2) * inv)
+        h = (1.0 - a2) * inv
+        s = sigmoid(h)
         free = 1.0 - v.o
         r = v.y - v.o - free * s
         wt = 1.0 if v.weight is None else v.weight  # inlier responsibility
@@ -207,7 +228,7 @@ def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: 
             evidence += float((wt * free) @ (s * v.y))
             # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
             w = free * s * (1.0 - s) * inv
-            act = w > 1e-9
+            act = (np.abs(h) < H_CUT) & (w > 0)  # off the saturated edge: no gradient
             J = D[act] * w[act, None]  # = d r / d delta
             Jw = J if v.weight is None else J * v.weight[act, None]
             H += Jw.T @ J

@@ -97,3 +97,42 @@ def test_no_views_keeps_the_pose():
     fit = fit_body([], pose, INNER)
     assert fit.pose == pose and fit.evidence == 0.0
     assert mstep.sigmoid(np.array([0.0]))[0] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("native", [True, False], ids=["native", "numpy"])
+def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monkeypatch):
+    """grad = J^T r with J = dr/d(delta t, omega), so d(cost)/d delta = 2 grad (cost = sum r^2);
+    checked by central differences of the cost, for the C kernel and the NumPy code."""
+    if native and mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    monkeypatch.setattr(mstep, "NATIVE", native)
+    rng = np.random.default_rng(5)
+    truth = _pose(rng)
+    pose = _moved(truth, np.r_[rng.normal(0, 0.03, 3), rng.normal(0, 0.05, 3)])
+    views = _views(_cams(), pose, truth, delta=1.5)
+    cost, grad, H, _ = mstep._evaluate(views, pose, INNER, True)
+    h = 1e-6
+    fd = np.empty(6)
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        fd[k] = (mstep._evaluate(views, _moved(pose, d), INNER, False)[0]
+                 - mstep._evaluate(views, _moved(pose, -d), INNER, False)[0]) / (2 * h)
+    np.testing.assert_allclose(2 * grad, fd, atol=2e-3 * np.abs(fd).max())
+    assert np.all(np.linalg.eigvalsh(H) >= -1e-9)  # a Gauss-Newton matrix
+
+
+def test_native_and_numpy_fits_agree(monkeypatch):
+    if mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    rng = np.random.default_rng(6)
+    truth = _pose(rng)
+    pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
+    views = _views(_cams(), pose, truth)
+    views = [BodyView(v.image, v.y, rng.uniform(0, 0.5, v.y.shape), rng.uniform(0.5, 1, v.y.shape)) for v in views]
+    out = {}
+    for native in (True, False):
+        monkeypatch.setattr(mstep, "NATIVE", native)
+        out[native] = mstep._evaluate(views, pose, INNER, True)
+    for a, b in zip(out[True], out[False]):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())
