@@ -37,8 +37,9 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import CameraError, InputDataError
+from ..native import kernels as _kernels
 from ..robot import Robot
-from ..virtual_work import static_update
+from ..virtual_work import _structure, static_update
 from .camera import Camera
 from .mstep import BodyView, _geometry, body_image, fit_bodies
 from .projection import body_bbox
@@ -203,6 +204,44 @@ def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
     E = np.array([[-x, -y, -z], [w, z, -y], [-z, w, x], [y, -x, w]])  # [0, ω] ⊗ θ / ... (world ω)
     Kth = 4.0 * E @ H[3:, 3:] @ E.T
     return np.r_[np.diag(H[:3, :3]), np.diag(Kth)]
+
+
+_I6 = np.arange(6)
+
+
+def _body_coordinates(robot: Robot, st) -> np.ndarray:
+    """(n, 7) [t, x, y, z, w] of every body frame from the joint placements in ``robot.data``
+    (after a forward pass); one C call when the kernels are built."""
+    X = np.empty((len(robot.frame_ids), 7))
+    if _kernels is not None:
+        _kernels.frame_coordinates(
+            [pin.SE3ToXYZQUAT(M) for M in robot.data.oMi.tolist()], st.frame_joint, st.frame_offset, X
+        )
+    else:
+        pin.updateFramePlacements(robot.model, robot.data)
+        oMf = robot.data.oMf
+        X[:] = [pin.SE3ToXYZQUAT(oMf[f]) for f in robot.frame_ids]
+    return X
+
+
+def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ⊗ conj(b) for (n, 4) quaternions in (x, y, z, w) order."""
+    av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
+    out = np.empty_like(a)
+    out[:, 3:] = aw * bw + np.sum(av * bv, axis=1, keepdims=True)
+    out[:, :3] = bw * av - aw * bv - np.cross(av, bv)
+    return out
+
+
+def _log_quat(qr: np.ndarray) -> np.ndarray:
+    """Rotation vectors (n, 3) of unit quaternions (n, 4), (x, y, z, w): angle in [0, pi]."""
+    v, w = qr[:, :3], qr[:, 3]
+    sign = np.where(w < 0, -1.0, 1.0)
+    v, w = v * sign[:, None], w * sign
+    nv = np.linalg.norm(v, axis=1)
+    small = nv < 1e-12
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv))
+    return v * scale[:, None]
 
 
 class Tracker:
@@ -432,26 +471,37 @@ class Tracker:
         """
         robot = self.robot
         model, data = robot.model, robot.data
-        S = [np.r_[np.full(3, float(np.mean(li))), np.ones(3)] for li in self.inner]
-        hmax = max(float(np.max(np.diag(s[:, None] * f.hessian * s[None, :]))) for s, f in zip(S, fits))
+        n, nv = len(fits), model.nv
+        S = np.ones((n, 6))
+        S[:, :3] = np.array([float(np.mean(li)) for li in self.inner])[:, None]
+        Hf = np.array([f.hessian for f in fits])  # (n, 6, 6)
+        hmax = float((np.einsum("nii->ni", Hf) * S**2).max())
         if hmax <= 0:
             return q
-        K = [f.hessian + self.stiffness_floor * hmax * np.diag(1.0 / s**2) for s, f in zip(S, fits)]
-        nv = model.nv
+        K = Hf.copy()
+        K[:, _I6, _I6] += self.stiffness_floor * hmax / S**2
+        target_t = np.array([f.pose.translation for f in fits])
+        target_q = np.array([pin.SE3ToXYZQUAT(f.pose)[3:] for f in fits])  # (x, y, z, w)
+        st = _structure(robot)
         for _ in range(self.static_iterations):
             pin.computeJointJacobians(model, data, q)
-            pin.updateFramePlacements(model, data)
-            A = np.zeros((nv, nv))
-            g = np.zeros(nv)
-            for i, fid in enumerate(robot.frame_ids):
-                M = data.oMf[fid]
-                T = fits[i].pose
-                e = np.r_[M.translation - T.translation, pin.log3(M.rotation @ T.rotation.T)]
-                J = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-                KJ = K[i] @ J
-                A += J.T @ KJ
-                g += KJ.T @ e
-            A[np.diag_indices(nv)] += 1e-9 * max(float(np.max(np.diag(A))), 1e-300)
+            X = _body_coordinates(robot, st)
+            # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
+            e = np.empty((n, 6))
+            e[:, :3] = X[:, :3] - target_t
+            e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], target_q))
+            # LOCAL_WORLD_ALIGNED Jacobians at the body centres from data.J (world frame)
+            Jw = data.J
+            J = np.empty((n, 6, nv))
+            J[:, 3:] = Jw[3:][None] * st.support[:, None, :]
+            J[:, :3] = (Jw[:3][None] + np.cross(Jw[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * st.support[
+                :, None, :
+            ]
+            KJ = (K @ J).reshape(6 * n, nv)
+            Jf = J.reshape(6 * n, nv)
+            A = Jf.T @ KJ
+            g = KJ.T @ e.ravel()
+            A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
             dq = -np.linalg.solve(A, g)
             q = pin.integrate(model, q, dq)
             if np.abs(dq).max() < 1e-7:
