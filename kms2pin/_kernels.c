@@ -557,6 +557,392 @@ static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_
     return Py_BuildValue("(dd)", cost, evidence);
 }
 
+/* ------------------------------------------------------------------ ECM E-step
+ * kms2pin.ecm.tracker.Tracker.iterate's E-step per pixel: each body's sharp
+ * silhouette s = sigma(h) on its box, the union's log(1 - M) = sum_j log(1 - s_j)
+ * = -sum_j softplus(h_j) per camera, then for every body the share of each pixel
+ * the others explain, o = 1 - exp(log(1 - M) + softplus(h_i)). */
+
+static inline double softplus(double h) { return (h > 0 ? h : 0.0) + log1p(exp(-fabs(h))); }
+
+static int image_arg(PyObject *obj, Buf *b, int writable, const char *name, int bytes)
+{
+    int flags = PyBUF_STRIDES | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b->view, flags) < 0) return -1;
+    b->held = 1;
+    int fmt_ok = bytes ? (b->view.itemsize == 1 && b->view.format && (!strcmp(b->view.format, "?") || !strcmp(b->view.format, "B")))
+                       : (b->view.itemsize == 8 && b->view.format && !strcmp(b->view.format, "d"));
+    if (!fmt_ok || b->view.ndim != 2) {
+        PyErr_Format(PyExc_TypeError, "%s must be a 2-D %s image", name, bytes ? "bool/uint8" : "float64");
+        return -1;
+    }
+    return 0;
+}
+
+static int box_arg(PyObject *const *args, const Buf *img, Py_ssize_t N, Py_ssize_t *box)
+{
+    for (int k = 0; k < 4; k++) {
+        box[k] = PyLong_AsSsize_t(args[k]);
+        if (box[k] == -1 && PyErr_Occurred()) return -1;
+    }
+    /* v0, u0, rows, cols */
+    if (box[0] < 0 || box[1] < 0 || box[2] < 0 || box[3] < 0 || box[0] + box[2] > img->view.shape[0] ||
+        box[1] + box[3] > img->view.shape[1] || box[2] * box[3] != N) {
+        PyErr_SetString(PyExc_ValueError, "box does not fit the image or the pixel count");
+        return -1;
+    }
+    return 0;
+}
+
+/* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, h_out, log_free_o|None, widen)
+ * h = (1 - a^2) inv on the box; log_free[box] -= softplus(h); with log_free_o also
+ * log_free_o[box] -= softplus(widen h). */
+static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "estep_body takes 12 arguments");
+        return NULL;
+    }
+    double A[9], e[3], Ae[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    double inv = PyFloat_AsDouble(args[3]), widen = PyFloat_AsDouble(args[11]);
+    if (PyErr_Occurred()) return NULL;
+    int has_o = args[10] != Py_None;
+    Buf b[4];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t box[4];
+    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs") ||
+        image_arg(args[4], &b[1], 1, "log_free", 0) < 0 || box_arg(args + 5, &b[1], b[0].view.shape[0], box) < 0 ||
+        vec_arg(args[9], &b[2], b[0].view.shape[0], 1, "h") < 0 ||
+        (has_o && (image_arg(args[10], &b[3], 1, "log_free_o", 0) < 0 ||
+                   box_arg(args + 5, &b[3], b[0].view.shape[0], box) < 0))) {
+        release(b, 4);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    Py_ssize_t i = 0;
+    for (Py_ssize_t r = 0; r < box[2]; r++)
+        for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
+            double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+            double h = (1.0 - closest_a2(A, e, Ae, d, qs, g)) * inv;
+            V(b[2], i) = h;
+            AT(b[1], box[0] + r, box[1] + c) -= softplus(h);
+            if (has_o) AT(b[3], box[0] + r, box[1] + c) -= softplus(widen * h);
+        }
+    release(b, 4);
+    Py_RETURN_NONE;
+}
+
+/* estep_view(log_free, mask, v0, u0, rows, cols, h, o_out, y_out):
+ * o = 1 - exp(min(log_free[box] + softplus(h), 0)), y = mask[box] (0/1). */
+static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "estep_view takes 9 arguments");
+        return NULL;
+    }
+    Buf b[5];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t box[4];
+    if (vec_arg(args[6], &b[2], -1, 0, "h") < 0 || image_arg(args[0], &b[0], 0, "log_free", 0) < 0 ||
+        image_arg(args[1], &b[1], 0, "mask", 1) < 0 || box_arg(args + 2, &b[0], b[2].view.shape[0], box) < 0 ||
+        box_arg(args + 2, &b[1], b[2].view.shape[0], box) < 0 ||
+        vec_arg(args[7], &b[3], b[2].view.shape[0], 1, "o") < 0 ||
+        vec_arg(args[8], &b[4], b[2].view.shape[0], 1, "y") < 0) {
+        release(b, 5);
+        return NULL;
+    }
+    Py_ssize_t i = 0;
+    for (Py_ssize_t r = 0; r < box[2]; r++)
+        for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
+            double others = AT(b[0], box[0] + r, box[1] + c) + softplus(V(b[2], i));
+            V(b[3], i) = -expm1(others < 0 ? others : 0.0);
+            const unsigned char *m =
+                (const unsigned char *)b[1].view.buf + (box[0] + r) * b[1].view.strides[0] + (box[1] + c) * b[1].view.strides[1];
+            V(b[4], i) = *m ? 1.0 : 0.0;
+        }
+    release(b, 5);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ one body's M-step
+ * kms2pin.ecm.mstep.fit_body in C: damped Gauss-Newton on the body's world pose
+ * (translation, rotation vector), every camera's view at once.  The Python function
+ * is the definition; this is the same loop with the per-pixel sums of silhouette_fit. */
+
+typedef struct {
+    Buf dirs, y, o, w;
+    double centre[3];
+    double inv;
+    int has_w;
+} View;
+
+static void release_views(View *v, Py_ssize_t n)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {
+        release(&v[i].dirs, 1);
+        release(&v[i].y, 1);
+        release(&v[i].o, 1);
+        release(&v[i].w, 1);
+    }
+}
+
+/* cost, evidence, and (jac) grad (6) and H (6x6, row-major) of one pose over all views */
+static void views_eval(const View *views, Py_ssize_t nv, const double *R, const double *t, const double *inner,
+                       int jac, double *cost_out, double *evid_out, double *grad, double *H)
+{
+    double A[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double s = 0.0;
+            for (int k = 0; k < 3; k++) s += R[3 * r + k] * R[3 * c + k] / (inner[k] * inner[k]);
+            A[3 * r + c] = s;
+        }
+    double cost = 0.0, evidence = 0.0, Hu[21] = {0}, g6[6] = {0};
+    for (Py_ssize_t k = 0; k < nv; k++) {
+        const View *v = &views[k];
+        double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
+        for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+        Py_ssize_t N = v->dirs.view.shape[0];
+        double inv = v->inv;
+        for (Py_ssize_t i = 0; i < N; i++) {
+            double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
+            double a2 = closest_a2(A, e, Ae, d, qs, g);
+            double h = (1.0 - a2) * inv;
+            double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+            double s = h >= 0 ? s1 : s0;
+            double y = V(v->y, i), o = V(v->o, i), wt = v->has_w ? V(v->w, i) : 1.0;
+            double fr = 1.0 - o;
+            double r = y - o - fr * s;
+            cost += wt * r * r;
+            if (!jac) continue;
+            evidence += wt * fr * s * y;
+            if (!(fabs(h) < H_CUT)) continue;
+            double w = fr * s0 * s1 * inv;
+            if (!(w > 0.0)) continue;
+            double J[6], qxg[3];
+            cross(qs, g, qxg);
+            for (int c = 0; c < 3; c++) {
+                J[c] = -2.0 * g[c] * w;
+                J[3 + c] = -2.0 * qxg[c] * w;
+            }
+            int m = 0;
+            for (int a = 0; a < 6; a++) {
+                double ja = wt * J[a];
+                g6[a] += ja * r;
+                for (int c = a; c < 6; c++) Hu[m++] += ja * J[c];
+            }
+        }
+    }
+    *cost_out = cost;
+    *evid_out = evidence;
+    if (jac) {
+        int m = 0;
+        for (int a = 0; a < 6; a++) {
+            grad[a] = g6[a];
+            for (int c = a; c < 6; c++, m++) H[6 * a + c] = H[6 * c + a] = Hu[m];
+        }
+    }
+}
+
+/* R <- exp([w]x) R (Rodrigues) */
+static void rotate_by(const double *w, double *R)
+{
+    double th = sqrt(dot3(w, w)), E[9];
+    double a, b;
+    if (th < 1e-8) {
+        a = 1.0 - th * th / 6.0;
+        b = 0.5 - th * th / 24.0;
+    } else {
+        a = sin(th) / th;
+        b = (1.0 - cos(th)) / (th * th);
+    }
+    double K[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0};
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double kk = 0.0;
+            for (int m = 0; m < 3; m++) kk += K[3 * r + m] * K[3 * m + c];
+            E[3 * r + c] = (r == c ? 1.0 : 0.0) + a * K[3 * r + c] + b * kk;
+        }
+    double out[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) out[3 * r + c] = E[3 * r] * R[c] + E[3 * r + 1] * R[3 + c] + E[3 * r + 2] * R[6 + c];
+    memcpy(R, out, sizeof(out));
+}
+
+/* solve (M + shift I) x = -g for a 6x6 symmetric M by Cholesky; 0 if not positive definite */
+static int chol6(const double *M, double shift, const double *g, double *x)
+{
+    double L[36] = {0}, y[6];
+    for (int j = 0; j < 6; j++) {
+        for (int i = j; i < 6; i++) {
+            double s = M[6 * i + j] + (i == j ? shift : 0.0);
+            for (int k = 0; k < j; k++) s -= L[6 * i + k] * L[6 * j + k];
+            if (i == j) {
+                if (!(s > 0.0) || !isfinite(s)) return 0;
+                L[6 * j + j] = sqrt(s);
+            } else {
+                L[6 * i + j] = s / L[6 * j + j];
+            }
+        }
+    }
+    for (int i = 0; i < 6; i++) {
+        double s = -g[i];
+        for (int k = 0; k < i; k++) s -= L[6 * i + k] * y[k];
+        y[i] = s / L[6 * i + i];
+    }
+    for (int i = 5; i >= 0; i--) {
+        double s = y[i];
+        for (int k = i + 1; k < 6; k++) s -= L[6 * k + i] * x[k];
+        x[i] = s / L[6 * i + i];
+    }
+    return 1;
+}
+
+/* fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out)
+ *     -> (evidence, cost)
+ * views: list of (dirs (N,3), camera centre (3,), inv = 1/(2 delta), y, o, weight|None).
+ * max_step <= 0: no cap. */
+static PyObject *fit_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10 || !PyList_Check(args[0])) {
+        PyErr_SetString(PyExc_TypeError, "fit_body(views, R, t, inner, iterations, damping, max_step, R, t, H)");
+        return NULL;
+    }
+    Py_ssize_t nv = PyList_GET_SIZE(args[0]);
+    View *views = (View *)PyMem_Calloc((size_t)(nv > 0 ? nv : 1), sizeof(View));
+    if (views == NULL) return PyErr_NoMemory();
+    Buf b[6];
+    memset(b, 0, sizeof(b));
+    double R[9], t[3], inner[3];
+    int ok = 1;
+    for (Py_ssize_t k = 0; k < nv && ok; k++) {
+        PyObject *tup = PyList_GET_ITEM(args[0], k);
+        if (!PyTuple_Check(tup) || PyTuple_GET_SIZE(tup) != 6) {
+            PyErr_SetString(PyExc_TypeError, "a view is (dirs, centre, inv, y, o, weight)");
+            ok = 0;
+            break;
+        }
+        View *v = &views[k];
+        Buf c;
+        memset(&c, 0, sizeof(c));
+        if (get_buf(PyTuple_GET_ITEM(tup, 0), &v->dirs, 0, "dirs") < 0 || check_2d(&v->dirs, -1, 3, "dirs") ||
+            vec_arg(PyTuple_GET_ITEM(tup, 1), &c, 3, 0, "centre") < 0) {
+            release(&c, 1);
+            ok = 0;
+            break;
+        }
+        for (int r = 0; r < 3; r++) v->centre[r] = V(c, r);
+        release(&c, 1);
+        v->inv = PyFloat_AsDouble(PyTuple_GET_ITEM(tup, 2));
+        if (v->inv == -1.0 && PyErr_Occurred()) {
+            ok = 0;
+            break;
+        }
+        Py_ssize_t N = v->dirs.view.shape[0];
+        PyObject *wobj = PyTuple_GET_ITEM(tup, 5);
+        v->has_w = wobj != Py_None;
+        if (vec_arg(PyTuple_GET_ITEM(tup, 3), &v->y, N, 0, "y") < 0 ||
+            vec_arg(PyTuple_GET_ITEM(tup, 4), &v->o, N, 0, "o") < 0 ||
+            (v->has_w && vec_arg(wobj, &v->w, N, 0, "weight") < 0)) {
+            ok = 0;
+            break;
+        }
+    }
+    if (ok) {
+        if (get_buf(args[1], &b[0], 0, "R") < 0 || check_2d(&b[0], 3, 3, "R") || vec_arg(args[2], &b[1], 3, 0, "t") < 0 ||
+            vec_arg(args[3], &b[2], 3, 0, "inner") < 0 || get_buf(args[7], &b[3], 1, "R_out") < 0 ||
+            check_2d(&b[3], 3, 3, "R_out") || vec_arg(args[8], &b[4], 3, 1, "t_out") < 0 ||
+            get_buf(args[9], &b[5], 1, "H_out") < 0 || check_2d(&b[5], 6, 6, "H_out"))
+            ok = 0;
+    }
+    long iterations = ok ? PyLong_AsLong(args[4]) : 0;
+    double damping = ok ? PyFloat_AsDouble(args[5]) : 0.0;
+    double max_step = ok ? PyFloat_AsDouble(args[6]) : 0.0;
+    if (ok && PyErr_Occurred()) ok = 0;
+    if (!ok) {
+        release_views(views, nv);
+        PyMem_Free(views);
+        release(b, 6);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) {
+        t[r] = V(b[1], r);
+        inner[r] = V(b[2], r);
+        for (int c = 0; c < 3; c++) R[3 * r + c] = AT(b[0], r, c);
+    }
+    double cost = 0.0, evidence = 0.0, grad[6] = {0}, H[36] = {0};
+    Py_BEGIN_ALLOW_THREADS
+    if (nv > 0) views_eval(views, nv, R, t, inner, 1, &cost, &evidence, grad, H);
+    int any = 0;
+    for (int m = 0; m < 36; m++) any |= H[m] != 0.0;
+    if (any) {
+        double size = (inner[0] + inner[1] + inner[2]) / 3.0;
+        double S[6] = {size, size, size, 1.0, 1.0, 1.0}, Hn[36], offset[6] = {0};
+        double dmax = 0.0;
+        for (int a = 0; a < 6; a++) dmax = fmax(dmax, S[a] * H[7 * a] * S[a]);
+        double prior = damping * fmax(dmax, 1e-12);
+        double lam = 1e-3;
+        for (long it = 0; it < iterations; it++) {
+            double gn[6], hmax = -INFINITY;
+            for (int a = 0; a < 6; a++) {
+                for (int c = 0; c < 6; c++) Hn[6 * a + c] = S[a] * H[6 * a + c] * S[c];
+                gn[a] = S[a] * grad[a] + prior * offset[a] / S[a];
+                hmax = fmax(hmax, Hn[7 * a]);
+            }
+            int improved = 0;
+            for (int tries = 0; tries < 6; tries++) {
+                double stepn[6], step[6];
+                if (!chol6(Hn, prior + lam * hmax, gn, stepn)) break;
+                if (max_step > 0.0) {
+                    double big = fmax(sqrt(dot3(stepn, stepn)), sqrt(dot3(stepn + 3, stepn + 3)));
+                    double f = fmin(1.0, max_step / fmax(big, 1e-300));
+                    for (int a = 0; a < 6; a++) stepn[a] *= f;
+                }
+                double R2[9], t2[3], c2, e2, g2[6], H2[36], p_old = 0.0, p_new = 0.0, off2[6];
+                for (int a = 0; a < 6; a++) {
+                    step[a] = stepn[a] * S[a];
+                    off2[a] = offset[a] + step[a];
+                    p_old += (offset[a] / S[a]) * (offset[a] / S[a]);
+                    p_new += (off2[a] / S[a]) * (off2[a] / S[a]);
+                }
+                memcpy(R2, R, sizeof(R2));
+                rotate_by(step + 3, R2);
+                for (int r = 0; r < 3; r++) t2[r] = t[r] + step[r];
+                views_eval(views, nv, R2, t2, inner, 1, &c2, &e2, g2, H2);
+                if (0.5 * c2 + 0.5 * prior * p_new <= 0.5 * cost + 0.5 * prior * p_old) {
+                    memcpy(R, R2, sizeof(R2));
+                    memcpy(t, t2, sizeof(t2));
+                    memcpy(offset, off2, sizeof(off2));
+                    memcpy(grad, g2, sizeof(g2));
+                    memcpy(H, H2, sizeof(H2));
+                    cost = c2;
+                    evidence = e2;
+                    lam = fmax(lam * 0.3, 1e-6);
+                    improved = 1;
+                    break;
+                }
+                lam *= 10.0;
+            }
+            if (!improved) break;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    for (int r = 0; r < 3; r++) {
+        V(b[4], r) = t[r];
+        for (int c = 0; c < 3; c++) AT(b[3], r, c) = R[3 * r + c];
+    }
+    for (int a = 0; a < 6; a++)
+        for (int c = 0; c < 6; c++) AT(b[5], a, c) = H[6 * a + c];
+    release_views(views, nv);
+    PyMem_Free(views);
+    release(b, 6);
+    return Py_BuildValue("(dd)", evidence, cost);
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
@@ -566,6 +952,12 @@ static PyMethodDef methods[] = {
      "ellipsoid_a2(dirs, A, e, out): closest approach a^2 of every ray to the ellipsoid"},
     {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,
      "silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> (cost, evidence)"},
+    {"estep_body", (PyCFunction)(void (*)(void))estep_body, METH_FASTCALL,
+     "estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, h, log_free_o, widen)"},
+    {"estep_view", (PyCFunction)(void (*)(void))estep_view, METH_FASTCALL,
+     "estep_view(log_free, mask, v0, u0, rows, cols, h, o, y)"},
+    {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
+     "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"stack_rows", (PyCFunction)(void (*)(void))stack_rows, METH_FASTCALL,
      "stack_rows(rows, out): copy a list of n float64 vectors into out (n, m)"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,

@@ -255,6 +255,14 @@ def fit_body(
     inner = np.asarray(inner, dtype=float)
     if not views:
         return BodyFit(pose0, np.zeros((6, 6)), 0.0, 0.0)
+    if NATIVE:  # the loop below in one C call (kms2pin/_kernels.c)
+        R, t, H = np.empty((3, 3)), np.empty(3), np.empty((6, 6))
+        evidence, cost = _kernels.fit_body(
+            [(v.image.dirs, v.image.camera.centre, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight) for v in views],
+            pose0.rotation, pose0.translation, inner, int(iterations), float(damping),
+            -1.0 if max_step is None else float(max_step), R, t, H,
+        )
+        return BodyFit(pin.SE3(R, t), H, evidence, cost)
     size = float(np.mean(inner))
     S = np.r_[np.full(3, size), np.ones(3)]
     pose = pose0

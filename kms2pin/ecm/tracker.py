@@ -40,6 +40,7 @@ from ..errors import CameraError, InputDataError
 from ..native import kernels as _kernels
 from ..robot import Robot
 from ..virtual_work import _structure, static_update
+from . import mstep as _mstep
 from .camera import Camera
 from .mstep import BodyView, _geometry, body_image, fit_bodies
 from .projection import body_bbox
@@ -407,6 +408,17 @@ class Tracker:
                     continue
                 if img.stride != 1:  # the union needs every pixel: evaluate at full resolution
                     img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=10**9)
+                if _mstep.NATIVE:  # the lines below, per pixel in C (kms2pin/_kernels.c)
+                    R = poses[i].rotation
+                    img.s = np.empty(len(img.dirs))
+                    b = img.box
+                    _kernels.estep_body(
+                        img.dirs, (R / self.inner[i] ** 2) @ R.T, cam.centre - poses[i].translation,
+                        1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, log_free_o,
+                        widen,
+                    )
+                    images[i][c] = img
+                    continue
                 a2, _ = _geometry(img, poses[i].rotation, poses[i].translation, self.inner[i], False)
                 h = (1.0 - a2) / (2.0 * img.delta)
                 img.s = h  # keep h; log(1 - s) = -log(1 + e^h)
@@ -425,10 +437,15 @@ class Tracker:
                 img = images[i][c]
                 if img is None:
                     continue
-                own = -np.logaddexp(0.0, img.s)
-                others = log_free[img.slices].ravel() - own
-                o = -np.expm1(np.minimum(others, 0.0))
-                y = mask[img.slices].ravel().astype(float)
+                if _mstep.NATIVE:
+                    b = img.box
+                    o, y = np.empty(len(img.s)), np.empty(len(img.s))
+                    _kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
+                else:
+                    own = -np.logaddexp(0.0, img.s)
+                    others = log_free[img.slices].ravel() - own
+                    o = -np.expm1(np.minimum(others, 0.0))
+                    y = mask[img.slices].ravel().astype(float)
                 views[i].append(BodyView(img, y, o, None if weight is None else weight[img.slices].ravel()))
         t1 = time.perf_counter()
         # M-step: every body on its own.

@@ -171,3 +171,24 @@ def test_noisy_mismatched_walk_does_not_diverge():
     errs = np.array([centre_error(robot, tr.step(m).q, qt) for m, qt in zip(data, motion)])
     assert errs.mean() < 1.0 and errs.max() < 2.0
     assert errs[-10:].mean() < 1.5 * errs[:10].mean() + 0.2
+
+
+@pytest.mark.parametrize("outlier", [0.0, 0.01])
+def test_native_and_numpy_trackers_agree(monkeypatch, outlier):
+    """The C kernels (E-step, M-step) and the NumPy code give the same track."""
+    from kms2pin.ecm import mstep
+
+    if mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    robot = _robot("lowerbody")
+    rng = np.random.default_rng(13)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    q0 = _perturbed(robot, qt, rng)
+    out = {}
+    for native in (True, False):
+        monkeypatch.setattr(mstep, "NATIVE", native)
+        out[native] = Tracker(robot, cams, q0=q0, outlier=outlier).step(render(robot, qt, cams))
+    np.testing.assert_allclose(out[True].q, out[False].q, atol=1e-9)
+    assert out[True].iterations == out[False].iterations
+    assert centre_error(robot, out[True].q, qt) < 0.5
