@@ -594,9 +594,9 @@ static int box_arg(PyObject *const *args, const Buf *img, Py_ssize_t N, Py_ssize
     return 0;
 }
 
-/* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, h_out, log_free_o|None, widen)
- * h = (1 - a^2) inv on the box; log_free[box] -= softplus(h); with log_free_o also
- * log_free_o[box] -= softplus(widen h). */
+/* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp_out, log_free_o|None, widen)
+ * h = (1 - a^2) inv on the box; sp = softplus(h) = -log(1 - s); log_free[box] -= sp;
+ * with log_free_o also log_free_o[box] -= softplus(widen h). */
 static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -614,7 +614,7 @@ static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t na
     Py_ssize_t box[4];
     if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs") ||
         image_arg(args[4], &b[1], 1, "log_free", 0) < 0 || box_arg(args + 5, &b[1], b[0].view.shape[0], box) < 0 ||
-        vec_arg(args[9], &b[2], b[0].view.shape[0], 1, "h") < 0 ||
+        vec_arg(args[9], &b[2], b[0].view.shape[0], 1, "sp") < 0 ||
         (has_o && (image_arg(args[10], &b[3], 1, "log_free_o", 0) < 0 ||
                    box_arg(args + 5, &b[3], b[0].view.shape[0], box) < 0))) {
         release(b, 4);
@@ -625,17 +625,17 @@ static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t na
     for (Py_ssize_t r = 0; r < box[2]; r++)
         for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
             double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
-            double h = (1.0 - closest_a2(A, e, Ae, d, qs, g)) * inv;
-            V(b[2], i) = h;
-            AT(b[1], box[0] + r, box[1] + c) -= softplus(h);
+            double h = (1.0 - closest_a2(A, e, Ae, d, qs, g)) * inv, sp = softplus(h);
+            V(b[2], i) = sp;
+            AT(b[1], box[0] + r, box[1] + c) -= sp;
             if (has_o) AT(b[3], box[0] + r, box[1] + c) -= softplus(widen * h);
         }
     release(b, 4);
     Py_RETURN_NONE;
 }
 
-/* estep_view(log_free, mask, v0, u0, rows, cols, h, o_out, y_out):
- * o = 1 - exp(min(log_free[box] + softplus(h), 0)), y = mask[box] (0/1). */
+/* estep_view(log_free, mask, v0, u0, rows, cols, sp, o_out, y_out):
+ * o = 1 - exp(min(log_free[box] + sp, 0)), y = mask[box] (0/1); sp from estep_body. */
 static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -646,7 +646,7 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
     Buf b[5];
     memset(b, 0, sizeof(b));
     Py_ssize_t box[4];
-    if (vec_arg(args[6], &b[2], -1, 0, "h") < 0 || image_arg(args[0], &b[0], 0, "log_free", 0) < 0 ||
+    if (vec_arg(args[6], &b[2], -1, 0, "sp") < 0 || image_arg(args[0], &b[0], 0, "log_free", 0) < 0 ||
         image_arg(args[1], &b[1], 0, "mask", 1) < 0 || box_arg(args + 2, &b[0], b[2].view.shape[0], box) < 0 ||
         box_arg(args + 2, &b[1], b[2].view.shape[0], box) < 0 ||
         vec_arg(args[7], &b[3], b[2].view.shape[0], 1, "o") < 0 ||
@@ -657,7 +657,7 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
     Py_ssize_t i = 0;
     for (Py_ssize_t r = 0; r < box[2]; r++)
         for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
-            double others = AT(b[0], box[0] + r, box[1] + c) + softplus(V(b[2], i));
+            double others = AT(b[0], box[0] + r, box[1] + c) + V(b[2], i);
             V(b[3], i) = -expm1(others < 0 ? others : 0.0);
             const unsigned char *m =
                 (const unsigned char *)b[1].view.buf + (box[0] + r) * b[1].view.strides[0] + (box[1] + c) * b[1].view.strides[1];
@@ -953,9 +953,9 @@ static PyMethodDef methods[] = {
     {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,
      "silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> (cost, evidence)"},
     {"estep_body", (PyCFunction)(void (*)(void))estep_body, METH_FASTCALL,
-     "estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, h, log_free_o, widen)"},
+     "estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp, log_free_o, widen)"},
     {"estep_view", (PyCFunction)(void (*)(void))estep_view, METH_FASTCALL,
-     "estep_view(log_free, mask, v0, u0, rows, cols, h, o, y)"},
+     "estep_view(log_free, mask, v0, u0, rows, cols, sp, o, y)"},
     {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"stack_rows", (PyCFunction)(void (*)(void))stack_rows, METH_FASTCALL,

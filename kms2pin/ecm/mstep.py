@@ -50,6 +50,7 @@ world translation ``δt`` and a world rotation vector ``ω`` applied to the body
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -141,6 +142,74 @@ def body_image(
     img = BodyImage(camera, box, stride, np.empty((0, 3)), delta)
     img.dirs = world_rays(camera)[img.slices].reshape(-1, 3)
     return img
+
+
+def body_images(
+    camera: Camera,
+    poses: Sequence[pin.SE3],
+    inners: Sequence[np.ndarray],
+    delta_px: float,
+    *,
+    slack_px: float = 2.0,
+    max_pixels: int = 6000,
+) -> list[BodyImage | None]:
+    """:func:`body_image` of every body in one camera, the box arithmetic vectorized
+    over bodies (same boxes and edge widths; distorted cameras and bodies that are
+    not entirely in front of the camera go through :func:`body_image`)."""
+    n = len(poses)
+    if n == 0:
+        return []
+    if camera.dist is not None:
+        return [
+            body_image(camera, P, L, delta_px, slack_px=slack_px, max_pixels=max_pixels) for P, L in zip(poses, inners)
+        ]
+    inner = np.asarray(inners, dtype=float).reshape(n, 3)
+    Rs = np.array([P.rotation for P in poses])
+    Rwc, K = camera.world_R_camera, camera.K
+    mu = (np.array([P.translation for P in poses]) - camera.centre) @ Rwc  # camera-frame centres
+    depth = mu[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Ls = np.sort(inner, axis=1)
+        radius_px = np.sqrt(K[0, 0] * K[1, 1]) * np.sqrt(Ls[:, 0] * Ls[:, 1]) / depth
+        r = np.maximum(radius_px, 1e-6)
+        delta = np.minimum(np.maximum(delta_px / r, 1e-6), 0.08)
+        L = inner * (np.sqrt(1.0 + 2.0 * H_CUT * delta) + slack_px / r)[:, None]
+        R_cb = Rwc.T @ Rs
+        sigma = (R_cb * L[:, None, :] ** 2) @ R_cb.transpose(0, 2, 1)
+        c_body = -np.einsum("ni,nij->nj", mu, R_cb)  # camera centre in the body frames
+        inside = ((c_body / L) ** 2).sum(axis=1) <= 1.0
+        half = np.sqrt(sigma[:, 2, 2])
+        front = ~inside & (mu[:, 2] - half > 0)
+        D = K @ (sigma - mu[:, :, None] * mu[:, None, :]) @ K.T  # dual conics P Q* P^T
+        a = D[:, 2, 2]
+        lo, hi = [], []
+        for i in (0, 1):
+            b, c = D[:, i, 2], D[:, i, i]
+            rt = np.sqrt(np.maximum(b * b - a * c, 0.0))
+            k1, k2 = (b - rt) / a, (b + rt) / a
+            lo.append(np.minimum(k1, k2))
+            hi.append(np.maximum(k1, k2))
+    finite = np.isfinite(lo[0]) & np.isfinite(lo[1]) & np.isfinite(hi[0]) & np.isfinite(hi[1])
+    rays = world_rays(camera)
+    H, W = camera.shape
+    out: list[BodyImage | None] = []
+    for i in range(n):
+        if not depth[i] > 1e-9 * float(inner[i].max()):
+            out.append(None)
+            continue
+        if not (front[i] and finite[i]):  # straddling, containing the camera or degenerate
+            out.append(body_image(camera, poses[i], inner[i], delta_px, slack_px=slack_px, max_pixels=max_pixels))
+            continue
+        u0, v0 = max(math.ceil(lo[0][i]) - 1, 0), max(math.ceil(lo[1][i]) - 1, 0)
+        u1, v1 = min(math.floor(hi[0][i]) + 2, W), min(math.floor(hi[1][i]) + 2, H)
+        if u1 <= u0 or v1 <= v0:
+            out.append(None)
+            continue
+        box = BBox(u0, v0, u1, v1)
+        stride = max(1, math.ceil(math.sqrt((v1 - v0) * (u1 - u0) / max_pixels)))
+        img = BodyImage(camera, box, stride, rays[v0:v1:stride, u0:u1:stride].reshape(-1, 3), float(delta[i]))
+        out.append(img)
+    return out
 
 
 def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, jac: bool):

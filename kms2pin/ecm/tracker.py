@@ -42,7 +42,7 @@ from ..robot import Robot
 from ..virtual_work import _structure, static_update
 from . import mstep as _mstep
 from .camera import Camera
-from .mstep import BodyView, _geometry, body_image, fit_bodies
+from .mstep import BodyView, _geometry, body_image, body_images, fit_bodies
 from .projection import body_bbox
 
 
@@ -371,8 +371,7 @@ class Tracker:
         inter = union = 0
         for cam, mask in zip(self.cameras, masks):
             model = np.zeros(cam.shape, dtype=bool)
-            for P, li in zip(poses, self.inner):
-                img = body_image(cam, P, li, 0.5, slack_px=0.0, max_pixels=10**9)
+            for P, li, img in zip(poses, self.inner, body_images(cam, poses, self.inner, 0.5, slack_px=0.0, max_pixels=10**9)):
                 if img is None:
                     continue
                 a2, _ = _geometry(img, P.rotation, P.translation, li, False)
@@ -402,15 +401,14 @@ class Tracker:
         for c, (cam, mask) in enumerate(zip(self.cameras, masks)):
             log_free = np.zeros(cam.shape)  # Σ_j log(1 - s_j)
             log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
-            for i in range(n):
-                img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=self.max_pixels)
+            for i, img in enumerate(body_images(cam, poses, self.inner, delta_px, max_pixels=self.max_pixels)):
                 if img is None:
                     continue
                 if img.stride != 1:  # the union needs every pixel: evaluate at full resolution
                     img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=10**9)
                 if _mstep.NATIVE:  # the lines below, per pixel in C (kms2pin/_kernels.c)
                     R = poses[i].rotation
-                    img.s = np.empty(len(img.dirs))
+                    img.s = np.empty(len(img.dirs))  # here softplus(h) = -log(1 - s)
                     b = img.box
                     _kernels.estep_body(
                         img.dirs, (R / self.inner[i] ** 2) @ R.T, cam.centre - poses[i].translation,
