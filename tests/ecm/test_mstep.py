@@ -8,7 +8,7 @@ import pytest
 
 from kms2pin.ecm import mstep
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.mstep import BodyView, _geometry, _moved, body_image, fit_body
+from kms2pin.ecm.mstep import BodyView, _geometry, _moved, body_image, body_images, fit_body
 from kms2pin.ecm.raycast import render_mask
 
 INNER = np.array([0.3, 0.8, 0.4])
@@ -156,3 +156,38 @@ def test_native_and_numpy_body_fits_agree(monkeypatch, max_step):
     np.testing.assert_allclose(a.hessian, b.hessian, rtol=1e-8, atol=1e-10 * np.abs(b.hessian).max())
     assert a.cost == pytest.approx(b.cost, rel=1e-9) and a.evidence == pytest.approx(b.evidence, rel=1e-9)
     assert np.linalg.norm(a.pose.translation - pose.translation) > 1e-4  # it moved
+
+
+def test_body_images_match_body_image_one_by_one():
+    """The vectorized boxes equal body_image's, also for bodies straddling the camera
+    plane or out of view, and under lens distortion (which takes the per-body path)."""
+    from pathlib import Path
+
+    from kms2pin.robot import load
+
+    robot = load(Path(__file__).resolve().parents[2] / "specs" / "fullbody.kms", root="free")
+    rng = np.random.default_rng(3)
+    centre = robot.q_rest[:3]
+    cams = [
+        Camera.default(),
+        Camera.look_at(position=[8, 3, 8], target=centre),
+        Camera.look_at(position=[0.5, 0, 6.5], target=centre),  # close: some bodies straddle
+    ]
+    cams.append(Camera(cams[1].K, cams[1].world_T_camera, cams[1].width, cams[1].height, dist=[0.1, -0.05, 0, 0, 0]))
+    inners = [robot.inner(b) for b in robot.bodies]
+    kinds = set()
+    for _ in range(20):
+        q = robot.random_configuration(rng, 60)
+        q[:3] += rng.normal(0, 1.5, 3)
+        poses = robot.body_poses(q)
+        for cam in cams:
+            for delta_px in (0.7, 3.0):
+                for a, (P, L) in zip(body_images(cam, poses, inners, delta_px), zip(poses, inners)):
+                    b = body_image(cam, P, L, delta_px)
+                    assert (a is None) == (b is None)
+                    kinds.add("none" if a is None else "full" if a.box.shape == cam.shape else "box")
+                    if a is not None:
+                        assert (a.box, a.stride) == (b.box, b.stride)
+                        assert a.delta == pytest.approx(b.delta, rel=1e-12)
+                        np.testing.assert_array_equal(a.dirs, b.dirs)
+    assert kinds == {"none", "full", "box"}
