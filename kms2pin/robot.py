@@ -187,7 +187,7 @@ class Robot:
         pin.removeCollisionPairsFromXML(self.model, geom, self.srdf, False)
         return geom
 
-    @property
+    @cached_property
     def height(self) -> float:
         """Vertical (world y) extent of the inner ellipsoids at rest, in spec units."""
         lo, hi = np.inf, -np.inf

@@ -452,13 +452,13 @@ class Tracker:
         fits = fit_bodies(
             views, poses, self.inner, iterations=self.m_iterations, damping=self.damping, max_step=self.max_step
         )
-        for i, fit in enumerate(fits):
-            quat = pin.Quaternion(fit.pose.rotation)
-            theta = np.array([quat.w, quat.x, quat.y, quat.z])
-            targets[i] = [*fit.pose.translation, *theta]
-            k[i] = _delta_to_stiffness(fit.hessian, theta)
         t2 = time.perf_counter()
         if self.static == "diagonal":
+            for i, fit in enumerate(fits):
+                quat = pin.Quaternion(fit.pose.rotation)
+                theta = np.array([quat.w, quat.x, quat.y, quat.z])
+                targets[i] = [*fit.pose.translation, *theta]
+                k[i] = _delta_to_stiffness(fit.hessian, theta)
             kmax = float(k.max())
             if kmax <= 0:
                 q_new = q
