@@ -42,7 +42,7 @@ from ..robot import Robot
 from ..virtual_work import _structure, static_update
 from . import mstep as _mstep
 from .camera import Camera
-from .mstep import BodyView, _geometry, body_image, body_images, fit_bodies
+from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, world_rays
 from .projection import body_bbox
 
 
@@ -403,11 +403,10 @@ class Tracker:
         for c, (cam, mask) in enumerate(zip(self.cameras, masks)):
             log_free = np.zeros(cam.shape)  # Σ_j log(1 - s_j)
             log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
-            for i, img in enumerate(body_images(cam, poses, self.inner, delta_px, max_pixels=self.max_pixels)):
+            # the union needs every pixel: the E-step works at full resolution
+            for i, img in enumerate(body_images(cam, poses, self.inner, delta_px, max_pixels=10**9)):
                 if img is None:
                     continue
-                if img.stride != 1:  # the union needs every pixel: evaluate at full resolution
-                    img = body_image(cam, poses[i], self.inner[i], delta_px, max_pixels=10**9)
                 if _mstep.NATIVE:  # the lines below, per pixel in C (kms2pin/_kernels.c)
                     R = poses[i].rotation
                     img.s = np.empty(len(img.dirs))  # here softplus(h) = -log(1 - s)
@@ -446,7 +445,8 @@ class Tracker:
                     others = log_free[img.slices].ravel() - own
                     o = -np.expm1(np.minimum(others, 0.0))
                     y = mask[img.slices].ravel().astype(float)
-                views[i].append(BodyView(img, y, o, None if weight is None else weight[img.slices].ravel()))
+                wt = None if weight is None else weight[img.slices].ravel()
+                views[i].append(self._subsampled(img, y, o, wt))
         t1 = time.perf_counter()
         # M-step: every body on its own.
         targets = np.empty((n, 7))
@@ -474,6 +474,21 @@ class Tracker:
         timings["m_step"] += t2 - t1
         timings["static_update"] += t3 - t2
         return q_new
+
+    def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
+        """The M-step's view of a full-resolution body image: every ``stride``-th row and
+        column when the box holds more than ``max_pixels`` pixels."""
+        rows, cols = img.shape
+        stride = max(1, int(np.ceil(np.sqrt(rows * cols / self.max_pixels))))
+        if stride == 1:
+            return BodyView(img, y, o, weight)
+        b = img.box
+        sub = BodyImage(img.camera, b, stride, world_rays(img.camera)[b.v0 : b.v1 : stride, b.u0 : b.u1 : stride].reshape(-1, 3), img.delta)
+
+        def pick(a):
+            return np.ascontiguousarray(a.reshape(rows, cols)[::stride, ::stride]).ravel()
+
+        return BodyView(sub, pick(y), pick(o), None if weight is None else pick(weight))
 
     def _static_update_full(self, q: np.ndarray, fits) -> np.ndarray:
         """Virtual-work equilibrium with a full 6x6 spring per body (its M-step curvature).

@@ -192,3 +192,26 @@ def test_native_and_numpy_trackers_agree(monkeypatch, outlier):
     np.testing.assert_allclose(out[True].q, out[False].q, atol=1e-9)
     assert out[True].iterations == out[False].iterations
     assert centre_error(robot, out[True].q, qt) < 0.5
+
+
+def test_max_pixels_subsamples_the_m_step_and_still_recovers(monkeypatch):
+    from kms2pin.ecm import tracker as tracker_mod
+
+    robot = _robot("lowerbody")
+    rng = np.random.default_rng(14)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    q0 = _perturbed(robot, qt, rng)
+    sizes = []
+    real = tracker_mod.fit_bodies
+
+    def spy(views, *a, **k):
+        sizes.extend((len(v.y), v.image.stride, len(v.image.dirs)) for vs in views for v in vs)
+        return real(views, *a, **k)
+
+    monkeypatch.setattr(tracker_mod, "fit_bodies", spy)
+    r = Tracker(robot, cams, q0=q0, max_pixels=400, max_iterations=10).step(render(robot, qt, cams))
+    assert max(n for n, _, _ in sizes) <= 400 * 1.3  # strided boxes: about max_pixels each
+    assert any(stride > 1 for _, stride, _ in sizes)
+    assert all(n == m for n, _, m in sizes)  # mask, others and rays subsampled alike
+    assert centre_error(robot, r.q, qt) < 1.0
