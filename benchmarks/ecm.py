@@ -56,9 +56,11 @@ def cameras(robot, n, level=False):
 CASES = {
     "lowerbody-2cam": ("lowerbody", "walk", 2),
     "lowerbody-1cam": ("lowerbody", "walk", 1),
+    "fullbody-2cam": ("fullbody", "walk", 2),
     "fullbody-1cam": ("fullbody", "walk", 1),
     "fullbody-4cam": ("fullbody", "walk", 4),
     "jplhand-2cam": ("jplhand", "random", 2),
+    "jplhand-1cam": ("jplhand", "random", 1),
 }
 
 
