@@ -7,8 +7,13 @@ VIDEO is a video file (anything OpenCV/FFmpeg reads) or a folder of images
 --learn-frames frames spread over the whole video (read twice; default) or on
 the first ones (--learn-from start); either way every frame, the learning frames
 included, gets a mask from the trained model.  Each mask is cleaned: shadows
-dropped, opening then closing with small elliptical kernels, blobs smaller
-than --min-blob-area removed, holes inside the silhouette filled.
+dropped (pixels that look like a darker copy of the background; --no-shadows
+keeps them, for a subject whose colours are a darker shade of the background's,
+e.g. light grey clothes before a white wall); its rim refined on luminance
+(lossy codecs blur colour about a pixel around the subject, not brightness;
+--no-edge-refinement skips this); opening then closing with small elliptical
+kernels, blobs smaller than --min-blob-area removed, holes inside the
+silhouette filled.
 
 A truncated or corrupt video is segmented up to the last readable frame, with
 a warning naming where it stopped; a video with no readable frame is an error.
@@ -30,6 +35,14 @@ HELP = "video (or image folder) -> figure-ground masks by adaptive background su
 _MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
 
 
+def add_shadow_argument(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--no-shadows``, shared with ``kms2pin track --video`` (``prefix`` starts its help)."""
+    p.add_argument("--no-shadows", action="store_true",
+                   help=f"{prefix}no shadow detection: pixels that are a darker copy of the background stay foreground "
+                        "(default: they are shadows, i.e. background; turn it off when the subject's colours are "
+                        "darker shades of the background's, e.g. light grey clothes before a white wall)")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", metavar="VIDEO", help="video file, or a folder of images")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder for frame_NNNNN.png masks")
@@ -48,6 +61,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-blob-area", type=int, metavar="PX",
                    help="drop foreground blobs smaller than this (default: 0.1%% of the image)")
     p.add_argument("--keep-holes", action="store_true", help="do not fill holes inside the silhouette")
+    add_shadow_argument(p)
+    p.add_argument("--no-edge-refinement", action="store_true",
+                   help="keep the rim of each mask as the colour test gives it (default: rim pixels whose "
+                        "luminance is closer to the background's are dropped, which takes off the ~1 px colour "
+                        "bleed of lossy video around the subject)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -57,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     params = SegmentParams(
         method=args.method, learn_frames=args.learn_frames, learn_from=args.learn_from, history=args.history,
         threshold=args.threshold, min_blob_area=args.min_blob_area, fill_holes=not args.keep_holes,
+        detect_shadows=not args.no_shadows, refine_edges=not args.no_edge_refinement,
     )
     params.check()
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1

@@ -10,6 +10,11 @@ trajectory.csv (joint angles in degrees, one row per frame, appended as it
 goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
 is available), model.kms and meta.json (for `kms2pin evaluate`).
+
+A frame whose masks are all empty (the subject has left every image) keeps the
+last pose and is flagged "empty mask" in trajectory.csv; with the automatic
+initialization the subject is searched for again once it is back
+(:mod:`kms2pin.video.reacquire`, flag "reinitialized").
 """
 
 from __future__ import annotations
@@ -26,10 +31,11 @@ import numpy as np
 
 from ..ecm.camera import Camera
 from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_conic
-from ..ecm.tracker import FrameResult, Tracker, Trajectory, TrajectoryCsvWriter
+from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ._common import add_spec_argument, read_model
+from .segment import add_shadow_argument
 
 NAME = "track"
 HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4"
@@ -53,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--video; with --masks the default is the rest pose)")
     p.add_argument("--method", choices=("mog2", "knn"), default="mog2",
                    help="segmentation of --video (default mog2)")
+    add_shadow_argument(p, prefix="segmentation of --video: ")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
@@ -161,7 +168,7 @@ def _initial_q(args, robot: Robot):
 
 
 def _auto_init(robot: Robot, cameras, frames_masks, start: int = 0):
-    """Initial pose from the first frame (at or after ``start``) with a non-empty mask."""
+    """Initial pose and its fit (IoU), from the first frame (at or after ``start``) with a non-empty mask."""
     from ..video.init import initial_pose_details
 
     for k in range(start, len(frames_masks)):
@@ -173,7 +180,7 @@ def _auto_init(robot: Robot, cameras, frames_masks, start: int = 0):
             if res.fit < 0.5:
                 print(f"warning: the initial pose fits the first frame poorly (IoU {res.fit:.2f}); "
                       "consider --init POSE.json", file=sys.stderr)
-            return res.q
+            return res.q, res.fit
     raise InputDataError("every mask is empty: nothing to track (check the segmentation in OUT/masks)")
 
 
@@ -192,7 +199,8 @@ def run(args: argparse.Namespace) -> int:
         from ..video.io import write_mask
         from ..video.track_video import segment_videos
 
-        per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method)
+        per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method,
+                                              detect_shadows=not args.no_shadows)
         for note in notes:
             print(f"note: {note}", file=sys.stderr)
         numbers = list(range(len(per_cam_masks[0])))
@@ -228,8 +236,9 @@ def run(args: argparse.Namespace) -> int:
 
     q0 = _initial_q(args, robot)
     auto = args.init == "auto" or (video_mode and not args.init)
+    init_fit = None
     if auto:
-        q0 = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
+        q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
     tracker = Tracker(robot, cameras, q0=q0)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -241,6 +250,7 @@ def run(args: argparse.Namespace) -> int:
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]
             meta["segmentation"] = args.method
+            meta["shadow_detection"] = not args.no_shadows
         (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         Camera.list_to_json(cameras, out / "cameras.json")
     except OSError as err:
@@ -254,7 +264,11 @@ def run(args: argparse.Namespace) -> int:
 
         iterator = tqdm(iterator, unit="frame", desc="tracking")
     interrupted = False
-    was_empty = False
+    reacquire = None
+    if auto and robot.root == "free":
+        from ..video.reacquire import Reacquisition
+
+        reacquire = Reacquisition(robot, cameras, q0, reference_fit=init_fit)
     try:
         with TrajectoryCsvWriter(robot, out / "trajectory.csv") as csv_out:
             for k in iterator:
@@ -265,18 +279,10 @@ def run(args: argparse.Namespace) -> int:
                 if "empty mask" in r.flags:
                     print(f"note: frame {frame}: empty mask ({names}); pose kept from the previous frame",
                           file=sys.stderr)
-                elif was_empty and auto and robot.root == "free" and r.fit < 0.5:
-                    # the subject came back somewhere else: find it again, keeping the joint angles
-                    from ..video.init import initial_pose
-
-                    q_new = initial_pose(robot, cameras, masks, q_start=r.q)
-                    tracker = Tracker(robot, cameras, q0=q_new)
-                    r2 = tracker.step(masks, source=f"{names}: frame {frame}")
-                    r = FrameResult(r2.q, r2.body_poses, r2.iterations, r2.fit, r2.converged,
-                                    r2.flags + ("reinitialized",), r2.timings)
-                    print(f"note: frame {frame}: subject back in view; pose found again (fit {r.fit:.2f})",
-                          file=sys.stderr)
-                was_empty = "empty mask" in r.flags
+                if reacquire is not None:
+                    tracker, r, note = reacquire.update(tracker, r, masks, source=f"{names}: frame {frame}")
+                    if note:
+                        print(f"note: frame {frame}: {note}", file=sys.stderr)
                 csv_out.write(frame, r)
                 qs.append(r.q)
                 results.append(r)

@@ -5,7 +5,9 @@ as belonging either to the rigid body system or to the background".  This
 module produces it from a static-camera video with OpenCV's adaptive
 per-pixel background models (``mog2``: Zivkovic's Gaussian mixture, the
 default; ``knn``: Zivkovic's K-nearest-neighbour samples), both with shadow
-detection on (shadow pixels, value 127, count as background).
+detection on by default (shadow pixels, value 127, count as background;
+``detect_shadows=False`` keeps them: a subject whose colours are darker shades
+of the background's, e.g. light grey before a white wall, is otherwise lost).
 
 Pipeline, per frame:
 
@@ -29,7 +31,20 @@ Pipeline, per frame:
    ``"spread"``) also update the model, at ``learning_rate``
    (default ``1/history``, history 500 frames: a subject that stands still
    for about ``0.7 * history`` frames fades into the background).
-4. **Clean-up** of every mask: shadows dropped; morphological opening
+4. **Edge refinement** (``refine_edges``, on by default): lossy codecs (MPEG-4,
+   H.264, MJPEG) store colour at half the resolution (4:2:0 chroma), so the
+   subject's colour bleeds about a pixel into the background around it and
+   the colour-distance models above mark that ring as foreground; luminance is
+   kept at full resolution.  A luminance background (the mean of the cleaned
+   learning frames, then updated on background pixels at the learning rate)
+   decides the rim of each raw mask (foreground pixels with a background
+   4-neighbour): a rim pixel stays foreground if its luminance is closer to
+   the mean luminance of the foreground inside it (5x5 window) than to the
+   background's (times the frame's global gain: the ratio of the mean
+   luminances over background pixels, which follows lighting flicker), or if those two
+   differ by less than ``edge_contrast`` grey levels (no luminance evidence:
+   the colour test stands).
+5. **Clean-up** of every mask: shadows dropped; morphological opening
    (elliptical ``open_size`` kernel, default 3x3) removes speckle, closing
    (``close_size``, default 5x5) bridges small gaps; connected components
    smaller than ``min_blob_area`` pixels are removed (default 0.1 % of the
@@ -73,6 +88,8 @@ class SegmentParams:
     fill_holes: bool = True
     detect_shadows: bool = True
     bootstrap_diff: float = 30.0
+    refine_edges: bool = True
+    edge_contrast: float = 4.0  # grey levels
 
     def check(self) -> None:
         if self.method not in METHODS:
@@ -92,6 +109,8 @@ class SegmentParams:
         for name in ("open_size", "close_size"):
             if getattr(self, name) < 0:
                 raise InputDataError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not self.edge_contrast >= 0:
+            raise InputDataError(f"edge_contrast must be >= 0, got {self.edge_contrast}")
 
 
 def default_min_blob_area(shape: tuple[int, ...]) -> int:
@@ -130,14 +149,21 @@ def remove_small_blobs(mask: np.ndarray, min_area: int) -> np.ndarray:
     """Drop 8-connected components of a 0/255 mask with fewer than ``min_area`` pixels."""
     if min_area <= 1:
         return mask
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n <= 1:
+    # Grana's block-based labelling: the same components, about 3x faster than the default here
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
+    small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < min_area) + 1
+    if small.size == 0:
         return mask
-    keep = stats[:, cv2.CC_STAT_AREA] >= min_area
-    keep[0] = False
-    if keep[1:].all():
-        return mask
-    return np.where(keep[labels], 255, 0).astype(np.uint8)
+    if small.size > 64:  # speckle everywhere: one pass over the image
+        keep = stats[:, cv2.CC_STAT_AREA] >= min_area
+        keep[0] = False
+        return np.where(keep[labels], 255, 0).astype(np.uint8)
+    out = mask.copy()
+    for i in small:  # erase each small blob inside its bounding box
+        x, y, w, h = stats[i, :4]
+        box = out[y : y + h, x : x + w]
+        box[labels[y : y + h, x : x + w] == i] = 0
+    return out
 
 
 def clean_mask(raw: np.ndarray, params: SegmentParams, min_area: int) -> np.ndarray:
@@ -153,6 +179,48 @@ def clean_mask(raw: np.ndarray, params: SegmentParams, min_area: int) -> np.ndar
     if params.fill_holes:
         m = fill_holes(m)
     return m
+
+
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+
+
+def luminance_gain(luma: np.ndarray, bg_luma: np.ndarray, background: np.ndarray, step: int = 4) -> float:
+    """Global lighting gain of a frame: mean luminance over mean background luminance,
+    both over the ``background`` pixels (a uint8 mask, non-zero = background) of every
+    ``step``-th row."""
+    m = background[::step]
+    b = cv2.mean(bg_luma[::step], m)[0]
+    return cv2.mean(luma[::step], m)[0] / b if b > 1.0 else 1.0
+
+
+def refine_edges(raw: np.ndarray, luma: np.ndarray, bg_luma: np.ndarray, gain: float,
+                 min_contrast: float) -> np.ndarray:
+    """Raw mask (0 / 127 / 255) with the rim pixels that luminance puts in the background
+    set to 0 (module docstring, step 4).  ``luma``: the frame's (H, W) uint8 luminance;
+    ``bg_luma``: (H, W) float32 background luminance."""
+    fg = cv2.threshold(raw, SHADOW, 1, cv2.THRESH_BINARY)[1]
+    x, y, w, h = cv2.boundingRect(fg)
+    if w == 0:
+        return raw
+    H, W = fg.shape
+    x0, y0, x1, y1 = max(x - 3, 0), max(y - 3, 0), min(x + w + 3, W), min(y + h + 3, H)
+    f = fg[y0:y1, x0:x1]
+    inner = cv2.erode(f, _CROSS)
+    rv, ru = np.nonzero(f > inner)  # the rim
+    if rv.size == 0:
+        return raw
+    lum = luma[y0:y1, x0:x1]
+    den = cv2.boxFilter(inner, cv2.CV_8U, (5, 5), normalize=False)[rv, ru].astype(np.float32)
+    inside_sum = cv2.boxFilter(cv2.bitwise_and(lum, lum, mask=inner), cv2.CV_16U, (5, 5), normalize=False)
+    y_fg = inside_sum[rv, ru] / np.maximum(den, 1.0)
+    y_bg = gain * bg_luma[y0 + rv, x0 + ru]
+    y = lum[rv, ru].astype(np.float32)
+    drop = (np.abs(y - y_bg) < np.abs(y - y_fg)) & (np.abs(y_fg - y_bg) >= min_contrast) & (den > 0)
+    if not drop.any():
+        return raw
+    out = raw.copy()
+    out[y0 + rv[drop], x0 + ru[drop]] = 0
+    return out
 
 
 def _as_bgr(frame: np.ndarray, index: int) -> np.ndarray:
@@ -192,7 +260,8 @@ class Segmenter:
     """Stateful frame-by-frame segmentation (used by :func:`segment_frames`).
 
     ``learn(frames)`` trains on the learning frames; ``segment(frame, rate)``
-    returns one 0/255 mask.
+    returns one 0/255 mask.  ``bg_luma`` is the (H, W) float32 luminance
+    background of the edge refinement.
     """
 
     def __init__(self, params: SegmentParams):
@@ -202,6 +271,8 @@ class Segmenter:
         self.shape: tuple[int, int] | None = None
         self.min_area: int | None = params.min_blob_area
         self.rate = 1.0 / params.history if params.learning_rate is None else params.learning_rate
+        self.bg_luma: np.ndarray | None = None
+        self.frames_seen = 0
 
     def _check_shape(self, frame: np.ndarray, index: int) -> None:
         if self.shape is None:
@@ -219,9 +290,27 @@ class Segmenter:
         for _ in range(epochs):
             for k, f in enumerate(clean):
                 self.model.apply(f, learningRate=1.0 / (k + 1))
+        if self.params.refine_edges and clean:
+            acc = np.zeros(clean[0].shape[:2], np.float32)
+            for f in clean:
+                acc += cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+            self.bg_luma = acc / len(clean)
 
     def segment(self, frame: np.ndarray, rate: float | None = None) -> np.ndarray:
-        raw = self.model.apply(frame, learningRate=self.rate if rate is None else rate)
+        rate = self.rate if rate is None else rate
+        raw = self.model.apply(frame, learningRate=rate)
+        self.frames_seen += 1
+        if self.params.refine_edges:
+            luma = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+            if self.bg_luma is None:  # learning online only: start from this frame
+                self.bg_luma = luma.astype(np.float32)
+            else:
+                background = cv2.compare(raw, 0, cv2.CMP_EQ)
+                gain = luminance_gain(luma, self.bg_luma, background)
+                raw = refine_edges(raw, luma, self.bg_luma, gain, self.params.edge_contrast)
+            luma_rate = max(1.0 / self.frames_seen, 1.0 / self.params.history) if rate < 0 else rate
+            if luma_rate > 0:
+                cv2.accumulateWeighted(luma, self.bg_luma, luma_rate, mask=cv2.compare(raw, 0, cv2.CMP_EQ))
         assert self.min_area is not None
         return clean_mask(raw, self.params, self.min_area)
 
@@ -259,7 +348,8 @@ def segment_frames(
     them (one pass, any iterator, e.g. a live stream).  Other keyword arguments
     are the fields of :class:`SegmentParams` (``history``, ``threshold``,
     ``learning_rate``, ``min_blob_area``, ``open_size``, ``close_size``,
-    ``fill_holes``, ``detect_shadows``, ``bootstrap_diff``).
+    ``fill_holes``, ``detect_shadows``, ``bootstrap_diff``, ``refine_edges``,
+    ``edge_contrast``).
     """
     params = SegmentParams(method=method, learn_frames=learn_frames, learn_from=learn_from, **kwargs)
     yield from (m > 0 for m in _segment_u8(frames, params))

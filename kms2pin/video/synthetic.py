@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import pinocchio as pin
 
 from ..ecm.camera import Camera
 from ..ecm.raycast import render_labels
@@ -60,6 +61,32 @@ class SyntheticVideo:
     camera: Camera
 
 
+def diagonal_walk(robot, frames: int, stride: int = 2, length: float = 3.0) -> np.ndarray:
+    """Configurations (frames, nq) of a free-root model walking ``length`` units along
+    world (1, 0, -1)/√2 through its rest position, turning to face that way over the
+    first half second: the ``walk`` motion's joint angles (every ``stride``-th frame of
+    30 fps) and a vertical bob of 2 % of the height.
+
+    Diagonal so that the subject crosses the images of both a front camera and a side
+    camera (at x = 8 looking along -x): background subtraction needs every pixel to show
+    the background in most frames, and a subject walking straight at a camera covers
+    the same pixels throughout.
+    """
+    from ..ecm.motions import FPS, make_motion
+
+    q = make_motion(robot, "walk", frames * stride)[::stride].copy()
+    t = np.arange(frames) * stride / FPS
+    ramp = np.clip(t / 0.5, 0, 1)
+    s = length * (t / max(t[-1], 1e-9) - 0.5)
+    d = np.array([1.0, 0.0, -1.0]) / np.sqrt(2)
+    rest = pin.XYZQUATToSE3(robot.q_rest[:7])
+    for f in range(frames):
+        R = pin.exp3(np.array([0.0, -np.pi / 4 * ramp[f], 0.0])) @ rest.rotation
+        p = rest.translation + s[f] * d + [0.0, 0.02 * robot.height * np.cos(2 * np.pi * t[f] / 0.6), 0.0]
+        q[f, :7] = pin.SE3ToXYZQUAT(pin.SE3(R, p))
+    return q
+
+
 def walking_video(
     robot,
     camera: Camera,
@@ -70,6 +97,7 @@ def walking_video(
     motion: str = "walk",
     render_scale: int = 1,
     stride: int = 4,
+    q: np.ndarray | None = None,
 ) -> SyntheticVideo:
     """The model's inner ellipsoids moving over a textured static background.
 
@@ -78,12 +106,18 @@ def walking_video(
     ``render_scale`` > 1 ray-casts at 1/render_scale of the resolution and
     enlarges (nearest) - faster, for benchmarks.  ``stride``: keep every
     ``stride``-th frame of the 30 fps motion (4: 60 frames span the 8 s
-    there-and-back walk, so the subject crosses the image).
+    there-and-back walk, so the subject crosses the image).  ``q``: the
+    configurations (frames, nq) to render instead of ``motion`` (e.g.
+    :func:`diagonal_walk`).
     """
     from ..ecm.motions import make_motion
 
     rng = np.random.default_rng(seed)
-    q = make_motion(robot, motion, frames * stride, rng=np.random.default_rng(seed))[::stride]
+    if q is None:
+        q = make_motion(robot, motion, frames * stride, rng=np.random.default_rng(seed))[::stride]
+    else:
+        q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
+        frames = len(q)
     bg = textured_background(camera.height, camera.width, rng)
     rcam = camera
     if render_scale > 1:

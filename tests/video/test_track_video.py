@@ -14,63 +14,15 @@ import pytest
 from kms2pin.cli import main
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.evaluate import evaluate
-from kms2pin.ecm.motions import FPS, make_motion
-from kms2pin.ecm.raycast import render_labels
 from kms2pin.ecm.tracker import Trajectory
 from kms2pin.errors import InputDataError
 from kms2pin.robot import load
 from kms2pin.video.init import initial_pose_details, read_pose_json
-from kms2pin.video.synthetic import textured_background, write_video
+from kms2pin.video.synthetic import diagonal_walk, write_video
 
-from ._scene import LOWER
+from ._scene import LOWER, pale_walk, read_masks, render_video
 
 N = 40
-STRIDE = 2  # 15 fps of the 30 fps walk
-# saturated BGR body colours: none is a darker copy of a greyish background colour
-# (MOG2's shadow detection would drop such a body: a light-red foot was lost that way)
-PALETTE = np.array(
-    [[40, 40, 200], [200, 60, 40], [40, 170, 40], [30, 140, 230], [180, 40, 170],
-     [200, 180, 30], [90, 30, 140], [30, 200, 200], [220, 40, 120]], float)
-
-
-def diagonal_walk(robot, frames: int) -> np.ndarray:
-    """The walk's joint angles; the root walks 3 units along (1, 0, -1)/√2, turning to face
-    that way over the first half second.  Diagonal so that the subject crosses both the
-    front and the side (x = 8) camera's images: background subtraction needs every pixel
-    to show the background in most frames, and a subject walking straight at a camera
-    covers the same pixels throughout."""
-    q = make_motion(robot, "walk", frames * STRIDE)[::STRIDE].copy()
-    t = np.arange(frames) * STRIDE / FPS
-    rest = pin.XYZQUATToSE3(robot.q_rest[:7])
-    d = np.array([1.0, 0.0, -1.0]) / np.sqrt(2)
-    ramp = np.clip(t / 0.5, 0, 1)
-    s = 3.0 * (t / t[-1] - 0.5)
-    for f in range(frames):
-        R = pin.exp3(np.array([0.0, -np.pi / 4 * ramp[f], 0.0])) @ rest.rotation
-        p = rest.translation + s[f] * d + [0.0, 0.02 * robot.height * np.cos(2 * np.pi * t[f] / 0.6), 0.0]
-        q[f, :7] = pin.SE3ToXYZQUAT(pin.SE3(R, p))
-    return q
-
-
-def render_video(robot, q, camera, seed, hide=()):
-    """BGR frames (textured static background, flicker, noise) and true masks."""
-    rng = np.random.default_rng(seed)
-    bg = textured_background(camera.height, camera.width, rng)
-    renders = [render_labels(camera, [(P, robot.inner(b)) for P, b in zip(robot.body_poses(qf), robot.bodies)])
-               for qf in q]
-    fin = np.concatenate([d[np.isfinite(d)] for _, d in renders])
-    near, far = float(fin.min()), float(fin.max())
-    frames, masks = [], []
-    for k, (lab, dep) in enumerate(renders):
-        fg = (lab >= 0) & (k not in hide)
-        img = bg.copy()
-        s = 1.0 - 0.45 * np.clip((dep[fg] - near) / max(far - near, 1e-9), 0.0, 1.0)
-        img[fg] = PALETTE[lab[fg] % len(PALETTE)] * s[:, None]
-        img *= rng.uniform(0.95, 1.05)
-        img += rng.normal(0.0, 3.0, size=img.shape).astype(np.float32)
-        frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
-        masks.append(fg)
-    return frames, masks
 
 
 @pytest.fixture(scope="module")
@@ -229,6 +181,27 @@ def test_truncated_video_tracks_what_it_can(scene, tmp_path, capsys):
     rows = (tmp_path / "o" / "trajectory.csv").read_text().splitlines()
     assert 1 < len(rows) - 1 < N
     assert f"stopped at frame {len(rows) - 1}" in err and str(cut) in err
+
+
+def test_no_shadows_reaches_the_segmentation(tmp_path, capsys):
+    """A light grey trunk before a white wall is a "shadow" unless --no-shadows; the
+    masks `track --video --no-shadows` saves keep it."""
+    robot = load(str(LOWER), root="free")
+    cam = Camera.default()
+    frames, _, light, q = pale_walk(robot, cam, frames=16, stride=15)
+    video = tmp_path / "frames"
+    video.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(video / f"f{i:02d}.png"), f)
+    cam.to_json(tmp_path / "cam.json")
+    Trajectory(robot, q[:1]).to_csv(tmp_path / "start.csv")
+    out = tmp_path / "o"
+    code = main(["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-shadows",
+                 "--init", str(tmp_path / "start.csv"), "--no-progress", "--no-video", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert json.loads((out / "meta.json").read_text())["shadow_detection"] is False
+    masks = read_masks(out / "masks" / "cam0", len(frames))
+    assert min((m & t).sum() / t.sum() for m, t in zip(masks, light)) >= 0.98
 
 
 def test_video_needs_cameras_and_exclusive_with_masks(scene, tmp_path, capsys):
