@@ -667,6 +667,100 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
     Py_RETURN_NONE;
 }
 
+/* pose_springs(J, X, T, K, S, A_out, g_out)
+ * The tracker's static update with a full 6x6 spring per body
+ * (kms2pin.ecm.tracker.Tracker._static_update_full): body i's pose error
+ * e_i = (t_i - t'_i, log(R_i R'_i^T)) from X and T (n, 7) [t, x, y, z, w], its
+ * LOCAL_WORLD_ALIGNED Jacobian J_i (6 x nv) at the body centre from Pinocchio's data.J
+ * (world frame) and the support mask S (n, nv); K (n, 36) row-major 6x6 stiffness.
+ * A = sum J_i^T K_i J_i, g = sum J_i^T K_i e_i. */
+static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "pose_springs(J, X, T, K, S, A, g)");
+        return NULL;
+    }
+    Buf b[7];
+    memset(b, 0, sizeof(b));
+    static const char *names[7] = {"J", "X", "T", "K", "S", "A", "g"};
+    for (int i = 0; i < 7; i++) {
+        if (get_buf(args[i], &b[i], i >= 5, names[i]) < 0) {
+            release(b, 7);
+            return NULL;
+        }
+    }
+    Py_ssize_t nv = b[0].view.ndim == 2 ? b[0].view.shape[1] : -1;
+    Py_ssize_t n = b[1].view.ndim == 2 ? b[1].view.shape[0] : -1;
+    if (check_2d(&b[0], 6, -1, "J") || check_2d(&b[1], -1, 7, "X") || check_2d(&b[2], n, 7, "T") ||
+        check_2d(&b[3], n, 36, "K") || check_2d(&b[4], n, nv, "S") || check_2d(&b[5], nv, nv, "A") ||
+        b[6].view.ndim != 1 || b[6].view.shape[0] != nv) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "g has the wrong shape");
+        release(b, 7);
+        return NULL;
+    }
+    double *Jb = (double *)PyMem_Malloc(sizeof(double) * (size_t)(12 * nv + 1));
+    if (Jb == NULL) {
+        release(b, 7);
+        return PyErr_NoMemory();
+    }
+    double *KJ = Jb + 6 * nv;
+    for (Py_ssize_t a = 0; a < nv; a++) {
+        V(b[6], a) = 0.0;
+        for (Py_ssize_t c = 0; c < nv; c++) AT(b[5], a, c) = 0.0;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double p[3] = {AT(b[1], i, 0), AT(b[1], i, 1), AT(b[1], i, 2)};
+        double qa[4] = {AT(b[1], i, 3), AT(b[1], i, 4), AT(b[1], i, 5), AT(b[1], i, 6)};
+        double qb[4] = {AT(b[2], i, 3), AT(b[2], i, 4), AT(b[2], i, 5), AT(b[2], i, 6)};
+        double e[6];
+        for (int c = 0; c < 3; c++) e[c] = p[c] - AT(b[2], i, c);
+        /* relative rotation qa (x) conj(qb), then its rotation vector (angle in [0, pi]) */
+        double bxv[3], v[3];
+        cross(qa, qb, bxv);
+        double w = qa[3] * qb[3] + dot3(qa, qb);
+        for (int c = 0; c < 3; c++) v[c] = qb[3] * qa[c] - qa[3] * qb[c] - bxv[c];
+        if (w < 0) {
+            w = -w;
+            for (int c = 0; c < 3; c++) v[c] = -v[c];
+        }
+        double nrm = sqrt(dot3(v, v));
+        double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
+        for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
+        /* J_i: rows (linear at p; angular), supported columns only */
+        for (Py_ssize_t a = 0; a < nv; a++) {
+            double sa = AT(b[4], i, a);
+            double om[3] = {AT(b[0], 3, a), AT(b[0], 4, a), AT(b[0], 5, a)}, oxp[3];
+            cross(om, p, oxp);
+            for (int c = 0; c < 3; c++) {
+                Jb[c * nv + a] = sa * (AT(b[0], c, a) + oxp[c]);
+                Jb[(3 + c) * nv + a] = sa * om[c];
+            }
+        }
+        for (int r = 0; r < 6; r++)
+            for (Py_ssize_t a = 0; a < nv; a++) {
+                double s = 0.0;
+                for (int c = 0; c < 6; c++) s += AT(b[3], i, 6 * r + c) * Jb[c * nv + a];
+                KJ[r * nv + a] = s;
+            }
+        for (Py_ssize_t a = 0; a < nv; a++) {
+            if (AT(b[4], i, a) == 0.0) continue;
+            double ga = 0.0;
+            for (int r = 0; r < 6; r++) ga += KJ[r * nv + a] * e[r];
+            V(b[6], a) += ga;
+            for (Py_ssize_t c = 0; c < nv; c++) {
+                if (AT(b[4], i, c) == 0.0) continue;
+                double s = 0.0;
+                for (int r = 0; r < 6; r++) s += Jb[r * nv + a] * KJ[r * nv + c];
+                AT(b[5], a, c) += s;
+            }
+        }
+    }
+    PyMem_Free(Jb);
+    release(b, 7);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ one body's M-step
  * kms2pin.ecm.mstep.fit_body in C: damped Gauss-Newton on the body's world pose
  * (translation, rotation vector), every camera's view at once.  The Python function
@@ -958,6 +1052,8 @@ static PyMethodDef methods[] = {
      "estep_view(log_free, mask, v0, u0, rows, cols, sp, o, y)"},
     {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
+    {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,
+     "pose_springs(J, X, T, K, S, A, g): the tracker's full-spring static update system"},
     {"stack_rows", (PyCFunction)(void (*)(void))stack_rows, METH_FASTCALL,
      "stack_rows(rows, out): copy a list of n float64 vectors into out (n, m)"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,

@@ -214,7 +214,7 @@ def _body_coordinates(robot: Robot, st) -> np.ndarray:
     """(n, 7) [t, x, y, z, w] of every body frame from the joint placements in ``robot.data``
     (after a forward pass); one C call when the kernels are built."""
     X = np.empty((len(robot.frame_ids), 7))
-    if _kernels is not None:
+    if _mstep.NATIVE:
         _kernels.frame_coordinates(
             [pin.SE3ToXYZQUAT(M) for M in robot.data.oMi.tolist()], st.frame_joint, st.frame_offset, X
         )
@@ -512,12 +512,23 @@ class Tracker:
             return q
         K = Hf.copy()
         K[:, _I6, _I6] += self.stiffness_floor * hmax / S**2
-        target_t = np.array([f.pose.translation for f in fits])
-        target_q = np.array([pin.SE3ToXYZQUAT(f.pose)[3:] for f in fits])  # (x, y, z, w)
+        T = np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])  # (n, 7) [t, x, y, z, w]
+        target_t, target_q = T[:, :3], T[:, 3:]
         st = _structure(robot)
+        native = _mstep.NATIVE
+        K36 = K.reshape(n, 36)
         for _ in range(self.static_iterations):
             pin.computeJointJacobians(model, data, q)
             X = _body_coordinates(robot, st)
+            if native:  # the lines below in one C call (kms2pin/_kernels.c)
+                A, g = np.empty((nv, nv)), np.empty(nv)
+                _kernels.pose_springs(data.J, X, T, K36, st.support, A, g)
+                A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
+                dq = -np.linalg.solve(A, g)
+                q = pin.integrate(model, q, dq)
+                if np.abs(dq).max() < 1e-7:
+                    break
+                continue
             # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
             e = np.empty((n, 6))
             e[:, :3] = X[:, :3] - target_t
