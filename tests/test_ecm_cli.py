@@ -101,3 +101,17 @@ def test_evaluate_bad_folder(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "x"), str(tmp_path / "t.csv")]) == 1
     assert "not a kms2pin track output" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "nope"), str(tmp_path / "t.csv")]) == 2
+
+
+def test_track_reports_frames_it_cannot_fit(tmp_path, cams2, capsys):
+    """Masks that no pose of the model explains (a thin diagonal line): the frames are
+    flagged 'poor fit' in the CSV and the command says where the track is probably lost."""
+    masks = _synth(tmp_path, cams2, frames=2)
+    for f in sorted(masks.glob("cam*/frame_*.png")):
+        cv2.imwrite(str(f), np.eye(240, 320, dtype=np.uint8) * 255)
+    out = tmp_path / "o"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "fit the masks poorly" in err and "first at frame 0" in err
+    rows = (out / "trajectory.csv").read_text().splitlines()
+    assert all("poor fit" in row for row in rows[1:])

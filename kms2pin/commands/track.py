@@ -319,6 +319,10 @@ def run(args: argparse.Namespace) -> int:
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
     fits = np.array([r.fit for r in results])
+    poor = [numbers[k] for k, r in enumerate(results) if any(f.startswith("poor fit") for f in r.flags)]
+    if poor:
+        print(f"note: {len(poor)} frame(s) fit the masks poorly (IoU < {tracker.poor_fit:g}), the first at frame "
+              f"{poor[0]}: the track is probably lost there (flag 'poor fit' in trajectory.csv)", file=sys.stderr)
     print(f"{out}: {len(qs)} frames tracked; mean fit (IoU) {fits.mean():.3f}, worst {fits.min():.3f} "
           f"(frame {numbers[int(fits.argmin())]})")
     return 0

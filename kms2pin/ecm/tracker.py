@@ -57,7 +57,8 @@ class FrameResult:
         fit: intersection over union of the model's inner silhouettes with the masks
             (over all cameras).
         converged: whether the configuration stopped changing within the limit.
-        flags: notes such as ``"empty mask"`` (pose kept from the previous frame).
+        flags: notes such as ``"empty mask"`` (pose kept from the previous frame) or
+            ``"poor fit (0.31)"`` (fit below the tracker's ``poor_fit``).
         timings: seconds spent in the E-step, M-step and static update.
     """
 
@@ -279,6 +280,8 @@ class Tracker:
             pixel no body explains (a false blob, a hole) pulls nobody.  Off by
             default: on the noisy walk benchmark even ``outlier=0.01`` discounted the
             pixels that tell a turn from its mirror image and the tracker diverged.
+        poor_fit: a frame whose fit (IoU of the model's silhouettes with the masks) is
+            below this is flagged ``"poor fit (...)"``: the track is probably lost there.
         max_step: cap on a body's M-step move per Gauss-Newton step (body sizes /
             radians; None: no cap).
     """
@@ -305,6 +308,7 @@ class Tracker:
         outlier: float = 0.0,
         outlier_px: float = 3.0,
         max_step: float | None = 0.5,
+        poor_fit: float = 0.5,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
@@ -326,6 +330,7 @@ class Tracker:
         self.clean = clean
         self.outlier, self.outlier_px = float(outlier), float(outlier_px)
         self.max_step = max_step
+        self.poor_fit = float(poor_fit)
         self.inner = [robot.inner(b) for b in robot.bodies]
         self.outer = [robot.outer(b) for b in robot.bodies]
         self.q = np.array(robot.q_rest if q0 is None else q0, dtype=float)
@@ -589,6 +594,8 @@ class Tracker:
                     converged = True
                     break
             fit = self._iou(q, masks)
+            if fit < self.poor_fit:
+                flags += (f"poor fit ({fit:.2f})",)
         finally:
             self.cameras = cams_saved
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)

@@ -215,3 +215,16 @@ def test_max_pixels_subsamples_the_m_step_and_still_recovers(monkeypatch):
     assert any(stride > 1 for _, stride, _ in sizes)
     assert all(n == m for n, _, m in sizes)  # mask, others and rays subsampled alike
     assert centre_error(robot, r.q, qt) < 1.0
+
+
+def test_a_frame_the_model_cannot_fit_is_flagged_poor_fit():
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    qt = robot.q_rest.copy()
+    good = Tracker(robot, cams, q0=qt).step(render(robot, qt, cams))
+    assert good.fit > 0.9 and not any(f.startswith("poor fit") for f in good.flags)
+    far = qt.copy()
+    far[0] += 0.6 * robot.height  # the silhouettes of a subject well to the side
+    r = Tracker(robot, cams, q0=qt, max_iterations=1, min_iterations=1).step(render(robot, far, cams))
+    assert r.fit < 0.5
+    assert any(f.startswith("poor fit") for f in r.flags)
