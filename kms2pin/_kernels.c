@@ -480,48 +480,40 @@ static PyObject *ellipsoid_a2(PyObject *self, PyObject *const *args, Py_ssize_t 
     Py_RETURN_NONE;
 }
 
-/* silhouette_fit(dirs, A, e, inv, y, o, weight|None, jac, H, grad) -> (cost, evidence)
- * For the sharp silhouette s = sigma((1 - a^2) inv) of one body in one view:
- * r = y - o - (1 - o) s, cost = sum wt r^2, evidence = sum wt (1 - o) s y; with jac,
- * adds J^T wt J to H (6x6) and J^T wt r to grad (6), J = dr/d(delta t, omega) over
- * the pixels on the edge, |h| < H_CUT, h = (1 - a^2) inv. */
-static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+typedef struct {
+    Buf dirs, y, o, w;
+    double centre[3];
+    double inv;
+    int has_w;
+} View;
+
+static void release_views(View *v, Py_ssize_t n)
 {
-    (void)self;
-    if (nargs != 10) {
-        PyErr_SetString(PyExc_TypeError, "silhouette_fit takes 10 arguments");
-        return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        release(&v[i].dirs, 1);
+        release(&v[i].y, 1);
+        release(&v[i].o, 1);
+        release(&v[i].w, 1);
     }
-    double A[9], e[3], Ae[3];
-    if (small_args(args[1], args[2], A, e) < 0) return NULL;
-    double inv = PyFloat_AsDouble(args[3]);
-    if (inv == -1.0 && PyErr_Occurred()) return NULL;
-    int jac = PyObject_IsTrue(args[7]);
-    if (jac < 0) return NULL;
-    int has_w = args[6] != Py_None;
-    Buf b[6];
-    memset(b, 0, sizeof(b));
-    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs")) {
-        release(b, 6);
-        return NULL;
-    }
-    Py_ssize_t N = b[0].view.shape[0];
-    if (vec_arg(args[4], &b[1], N, 0, "y") < 0 || vec_arg(args[5], &b[2], N, 0, "o") < 0 ||
-        (has_w && vec_arg(args[6], &b[3], N, 0, "weight") < 0) || get_buf(args[8], &b[4], 1, "H") < 0 ||
-        check_2d(&b[4], 6, 6, "H") || vec_arg(args[9], &b[5], 6, 1, "grad") < 0) {
-        release(b, 6);
-        return NULL;
-    }
+}
+
+/* The per-pixel sums of one view (kms2pin.ecm.mstep._evaluate), added to cost,
+ * evidence, g6 (6) and Hu (the 21 entries of the upper triangle of H, row by row). */
+static void view_accumulate(const View *v, const double *A, const double *t, int jac, double *cost_io,
+                            double *evid_io, double *g6, double *Hu)
+{
+    double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
     for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
-    double cost = 0.0, evidence = 0.0, H[21] = {0}, grad[6] = {0};
+    Py_ssize_t N = v->dirs.view.shape[0];
+    double inv = v->inv, cost = 0.0, evidence = 0.0, hu[21] = {0}, gl[6] = {0}; /* local: no aliasing */
     for (Py_ssize_t i = 0; i < N; i++) {
-        double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+        double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
         double a2 = closest_a2(A, e, Ae, d, qs, g);
         double h = (1.0 - a2) * inv;
         /* s = sigma(h) and 1 - s = sigma(-h) from one exp, without overflow */
         double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
         double s = h >= 0 ? s1 : s0;
-        double y = V(b[1], i), o = V(b[2], i), wt = has_w ? V(b[3], i) : 1.0;
+        double y = V(v->y, i), o = V(v->o, i), wt = v->has_w ? V(v->w, i) : 1.0;
         double fr = 1.0 - o;
         double r = y - o - fr * s;
         cost += wt * r * r;
@@ -536,24 +528,67 @@ static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_
             J[c] = -2.0 * g[c] * w;
             J[3 + c] = -2.0 * qxg[c] * w;
         }
-        int k = 0;
+        int m = 0;
         for (int a = 0; a < 6; a++) {
             double ja = wt * J[a];
-            grad[a] += ja * r;
-            for (int c = a; c < 6; c++) H[k++] += ja * J[c];
+            gl[a] += ja * r;
+            for (int c = a; c < 6; c++) hu[m++] += ja * J[c];
         }
     }
+    *cost_io += cost;
+    *evid_io += evidence;
+    for (int a = 0; a < 6; a++) g6[a] += gl[a];
+    for (int m = 0; m < 21; m++) Hu[m] += hu[m];
+}
+
+/* silhouette_fit(dirs, A, e, inv, y, o, weight|None, jac, H, grad) -> (cost, evidence)
+ * For the sharp silhouette s = sigma((1 - a^2) inv) of one body in one view:
+ * r = y - o - (1 - o) s, cost = sum wt r^2, evidence = sum wt (1 - o) s y; with jac,
+ * adds J^T wt J to H (6x6) and J^T wt r to grad (6), J = dr/d(delta t, omega) over
+ * the pixels on the edge, |h| < H_CUT, h = (1 - a^2) inv. */
+static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_fit takes 10 arguments");
+        return NULL;
+    }
+    double A[9], e[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    View v;
+    memset(&v, 0, sizeof(v));
+    v.inv = PyFloat_AsDouble(args[3]);
+    if (v.inv == -1.0 && PyErr_Occurred()) return NULL;
+    int jac = PyObject_IsTrue(args[7]);
+    if (jac < 0) return NULL;
+    v.has_w = args[6] != Py_None;
+    for (int c = 0; c < 3; c++) v.centre[c] = e[c]; /* with t = 0 below: centre - t = e */
+    Buf b[2];
+    memset(b, 0, sizeof(b));
+    int ok = get_buf(args[0], &v.dirs, 0, "dirs") == 0 && check_2d(&v.dirs, -1, 3, "dirs") == 0;
+    Py_ssize_t N = ok ? v.dirs.view.shape[0] : 0;
+    ok = ok && vec_arg(args[4], &v.y, N, 0, "y") == 0 && vec_arg(args[5], &v.o, N, 0, "o") == 0 &&
+         (!v.has_w || vec_arg(args[6], &v.w, N, 0, "weight") == 0) && get_buf(args[8], &b[0], 1, "H") == 0 &&
+         check_2d(&b[0], 6, 6, "H") == 0 && vec_arg(args[9], &b[1], 6, 1, "grad") == 0;
+    if (!ok) {
+        release_views(&v, 1);
+        release(b, 2);
+        return NULL;
+    }
+    double cost = 0.0, evidence = 0.0, Hu[21] = {0}, g6[6] = {0}, zero[3] = {0.0, 0.0, 0.0};
+    view_accumulate(&v, A, zero, jac, &cost, &evidence, g6, Hu);
     if (jac) {
         int k = 0;
         for (int a = 0; a < 6; a++) {
-            V(b[5], a) += grad[a];
+            V(b[1], a) += g6[a];
             for (int c = a; c < 6; c++, k++) {
-                AT(b[4], a, c) += H[k];
-                if (c != a) AT(b[4], c, a) += H[k];
+                AT(b[0], a, c) += Hu[k];
+                if (c != a) AT(b[0], c, a) += Hu[k];
             }
         }
     }
-    release(b, 6);
+    release_views(&v, 1);
+    release(b, 2);
     return Py_BuildValue("(dd)", cost, evidence);
 }
 
@@ -766,23 +801,6 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
  * (translation, rotation vector), every camera's view at once.  The Python function
  * is the definition; this is the same loop with the per-pixel sums of silhouette_fit. */
 
-typedef struct {
-    Buf dirs, y, o, w;
-    double centre[3];
-    double inv;
-    int has_w;
-} View;
-
-static void release_views(View *v, Py_ssize_t n)
-{
-    for (Py_ssize_t i = 0; i < n; i++) {
-        release(&v[i].dirs, 1);
-        release(&v[i].y, 1);
-        release(&v[i].o, 1);
-        release(&v[i].w, 1);
-    }
-}
-
 /* cost, evidence, and (jac) grad (6) and H (6x6, row-major) of one pose over all views */
 static void views_eval(const View *views, Py_ssize_t nv, const double *R, const double *t, const double *inner,
                        int jac, double *cost_out, double *evid_out, double *grad, double *H)
@@ -794,50 +812,14 @@ static void views_eval(const View *views, Py_ssize_t nv, const double *R, const 
             for (int k = 0; k < 3; k++) s += R[3 * r + k] * R[3 * c + k] / (inner[k] * inner[k]);
             A[3 * r + c] = s;
         }
-    double cost = 0.0, evidence = 0.0, Hu[21] = {0}, g6[6] = {0};
-    for (Py_ssize_t k = 0; k < nv; k++) {
-        const View *v = &views[k];
-        double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
-        for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
-        Py_ssize_t N = v->dirs.view.shape[0];
-        double inv = v->inv;
-        for (Py_ssize_t i = 0; i < N; i++) {
-            double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
-            double a2 = closest_a2(A, e, Ae, d, qs, g);
-            double h = (1.0 - a2) * inv;
-            double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
-            double s = h >= 0 ? s1 : s0;
-            double y = V(v->y, i), o = V(v->o, i), wt = v->has_w ? V(v->w, i) : 1.0;
-            double fr = 1.0 - o;
-            double r = y - o - fr * s;
-            cost += wt * r * r;
-            if (!jac) continue;
-            evidence += wt * fr * s * y;
-            if (!(fabs(h) < H_CUT)) continue;
-            double w = fr * s0 * s1 * inv;
-            if (!(w > 0.0)) continue;
-            double J[6], qxg[3];
-            cross(qs, g, qxg);
-            for (int c = 0; c < 3; c++) {
-                J[c] = -2.0 * g[c] * w;
-                J[3 + c] = -2.0 * qxg[c] * w;
-            }
-            int m = 0;
-            for (int a = 0; a < 6; a++) {
-                double ja = wt * J[a];
-                g6[a] += ja * r;
-                for (int c = a; c < 6; c++) Hu[m++] += ja * J[c];
-            }
-        }
-    }
-    *cost_out = cost;
-    *evid_out = evidence;
+    double Hu[21] = {0};
+    *cost_out = *evid_out = 0.0;
+    for (int a = 0; a < 6; a++) grad[a] = 0.0;
+    for (Py_ssize_t k = 0; k < nv; k++) view_accumulate(&views[k], A, t, jac, cost_out, evid_out, grad, Hu);
     if (jac) {
         int m = 0;
-        for (int a = 0; a < 6; a++) {
-            grad[a] = g6[a];
+        for (int a = 0; a < 6; a++)
             for (int c = a; c < 6; c++, m++) H[6 * a + c] = H[6 * c + a] = Hu[m];
-        }
     }
 }
 
