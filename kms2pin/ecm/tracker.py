@@ -280,6 +280,9 @@ class Tracker:
             pixel no body explains (a false blob, a hole) pulls nobody.  Off by
             default: on the noisy walk benchmark even ``outlier=0.01`` discounted the
             pixels that tell a turn from its mirror image and the tracker diverged.
+        max_prediction_deg: the constant-velocity prediction moves no joint more than
+            this per frame (degrees; the root's translation: this many hundredths of the
+            model height), so that a spinning, poorly seen joint is not carried on.
         poor_fit: a frame whose fit (IoU of the model's silhouettes with the masks) is
             below this is flagged ``"poor fit (...)"``: the track is probably lost there.
         max_step: cap on a body's M-step move per Gauss-Newton step (body sizes /
@@ -309,6 +312,7 @@ class Tracker:
         outlier_px: float = 3.0,
         max_step: float | None = 0.5,
         poor_fit: float = 0.5,
+        max_prediction_deg: float = 10.0,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
@@ -331,6 +335,7 @@ class Tracker:
         self.outlier, self.outlier_px = float(outlier), float(outlier_px)
         self.max_step = max_step
         self.poor_fit = float(poor_fit)
+        self.max_prediction = np.radians(float(max_prediction_deg))
         self.inner = [robot.inner(b) for b in robot.bodies]
         self.outer = [robot.outer(b) for b in robot.bodies]
         self.q = np.array(robot.q_rest if q0 is None else q0, dtype=float)
@@ -580,7 +585,7 @@ class Tracker:
         try:
             q = self.q.copy()
             if self.prediction == "constant_velocity" and self._prev is not None:
-                q = pin.integrate(model, q, pin.difference(model, self._prev, self.q))
+                q = pin.integrate(model, q, self._velocity())
             converged = False
             it = 0
             delta = self.delta_start
@@ -601,6 +606,17 @@ class Tracker:
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         self._advance(q)
         return res
+
+    def _velocity(self) -> np.ndarray:
+        """Last frame's motion (tangent vector), each angle capped at ``max_prediction_deg``
+        and the root's translation at that many hundredths of the model height (as in
+        ``tol_deg``): a joint the images hardly fix can start to spin, and an uncapped
+        prediction would carry the spin on from frame to frame."""
+        v = pin.difference(self.robot.model, self._prev, self.q)
+        cap = np.full(len(v), self.max_prediction)
+        if self._root_dofs:
+            cap[:3] = np.degrees(self.max_prediction) * 0.01 * self.robot.height
+        return np.clip(v, -cap, cap)
 
     def _advance(self, q: np.ndarray, keep_velocity: bool = True) -> None:
         self._prev = self.q.copy() if keep_velocity else q.copy()

@@ -228,3 +228,21 @@ def test_a_frame_the_model_cannot_fit_is_flagged_poor_fit():
     r = Tracker(robot, cams, q0=qt, max_iterations=1, min_iterations=1).step(render(robot, far, cams))
     assert r.fit < 0.5
     assert any(f.startswith("poor fit") for f in r.flags)
+
+
+def test_constant_velocity_prediction_is_capped():
+    """A joint that turned 90 deg in the last frame (a poorly seen joint starting to spin)
+    is predicted to move at most max_prediction_deg; slow joints keep their velocity."""
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    tr = Tracker(robot, cams, max_prediction_deg=10.0)
+    q0 = robot.q_rest.copy()
+    q1 = q0.copy()
+    q1[7] += np.radians(90.0)  # first revolute joint: a fast spin
+    q1[8] += np.radians(3.0)  # a normal walking speed
+    q1[0] += 0.5 * robot.height  # the root jumps half a body height
+    tr._prev, tr.q = q0, q1
+    v = tr._velocity()
+    assert np.degrees(v[6]) == pytest.approx(10.0)
+    assert np.degrees(v[7]) == pytest.approx(3.0)
+    assert np.abs(v[:3]).max() == pytest.approx(0.1 * robot.height)  # root translation, local axes
