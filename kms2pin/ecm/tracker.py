@@ -312,7 +312,7 @@ class Tracker:
         outlier_px: float = 3.0,
         max_step: float | None = 0.5,
         poor_fit: float = 0.5,
-        max_prediction_deg: float = 10.0,
+        max_prediction_deg: float = 20.0,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")

@@ -235,7 +235,7 @@ def test_constant_velocity_prediction_is_capped():
     is predicted to move at most max_prediction_deg; slow joints keep their velocity."""
     robot = _robot("lowerbody")
     cams = _cams(robot)
-    tr = Tracker(robot, cams, max_prediction_deg=10.0)
+    tr = Tracker(robot, cams, max_prediction_deg=10.0)  # not the default (20)
     q0 = robot.q_rest.copy()
     q1 = q0.copy()
     q1[7] += np.radians(90.0)  # first revolute joint: a fast spin
