@@ -203,6 +203,20 @@ def _structure(robot: Robot) -> _Structure:
     return s
 
 
+def body_frames(model: pin.Model, data: pin.Data, frames, s: _Structure, native: bool) -> np.ndarray:
+    """(n, 7) [mu, x, y, z, w] of the body frames after a forward pass into ``data``: in C,
+    the joint placements (one Pinocchio call for all) times each frame's fixed offset;
+    otherwise Pinocchio's own frame placements."""
+    X = np.empty((len(frames), 7))
+    if native:
+        _kernels.frame_coordinates([pin.SE3ToXYZQUAT(M) for M in data.oMi.tolist()], s.frame_joint, s.frame_offset, X)
+    else:
+        pin.updateFramePlacements(model, data)
+        oMf = data.oMf
+        X[:] = [pin.SE3ToXYZQUAT(oMf[f]) for f in frames]
+    return X
+
+
 class _Evaluator:
     """Maximal coordinates, springs, B = d q_max / d q and the Newton Hessian at q.
 
@@ -227,11 +241,6 @@ class _Evaluator:
         self.k_scalar = float(nz[0]) if len(nz) and (self.k == nz[0]).all() else None
         self.support3 = self.s.support[:, None, :]
 
-    def coordinates(self) -> np.ndarray:
-        """(n, 7) [mu, x, y, z, w] of the body frames in ``data``."""
-        oMf = self.data.oMf
-        return np.array([pin.SE3ToXYZQUAT(oMf[f]) for f in self.frames])
-
     def residual(self, X: np.ndarray) -> np.ndarray:
         """q_max - q'_aligned in the internal layout (targets on the primary's side, §2.2.1)."""
         diff = X - self.targets
@@ -247,20 +256,14 @@ class _Evaluator:
     def linearize_full(self, q: np.ndarray, hessian: bool = True):
         """:meth:`linearize` plus the aligned residual q_max - q', ||grad||^2 and max diag H."""
         pin.computeJointJacobians(self.model, self.data, q)
-        if self.native:  # the same arithmetic in C calls (kms2pin/_kernels.c)
-            # body frames = joint placements (one Pinocchio call for all) * fixed offsets
-            X = np.empty((self.n, 7))
-            _kernels.frame_coordinates(
-                [pin.SE3ToXYZQUAT(M) for M in self.data.oMi.tolist()], self.s.frame_joint, self.s.frame_offset, X
-            )
+        X = body_frames(self.model, self.data, self.frames, self.s, self.native)
+        if self.native:  # the same arithmetic in one C call (kms2pin/_kernels.c)
             nv = self.model.nv
             grad, H, diff = np.empty(nv), np.empty((nv, nv)), np.empty((self.n, 7))
             energy, gsq, hmax = _kernels.linearize(
                 self.data.J, X, self.targets, self.k, self.s.support, self.s.same_joint_f, grad, H, diff, hessian
             )
             return energy, grad, H, X, diff, gsq, hmax
-        pin.updateFramePlacements(self.model, self.data)
-        X = self.coordinates()
         p, theta = X[:, :3], X[:, 3:]
         diff = self.residual(X)
         rho = self.k * diff  # -F_i (eq. 2.33)

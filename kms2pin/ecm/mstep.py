@@ -94,7 +94,8 @@ class BodyImage:
     ``box`` is the pixel box (of the body's inner ellipsoid grown to reach
     ``h = -H_CUT`` plus ``slack_px``); ``dirs`` (N, 3) the world rays of its
     pixels, every ``stride``-th row and column; ``delta`` the edge width in
-    ``a²/2`` units; ``s`` the sharp silhouette at the pose it was made for.
+    ``a²/2`` units; ``s`` (set by the tracker's E-step) ``softplus(h) = -log(1 - s)``
+    of the sharp silhouette ``s = σ(h)`` at the pose it was made for.
     """
 
     camera: Camera

@@ -39,7 +39,7 @@ import pinocchio as pin
 from ..errors import CameraError, InputDataError
 from ..native import kernels as _kernels
 from ..robot import Robot
-from ..virtual_work import _structure, static_update
+from ..virtual_work import _structure, body_frames, static_update
 from . import mstep as _mstep
 from .camera import Camera
 from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, world_rays
@@ -211,21 +211,6 @@ def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
 _I6 = np.arange(6)
 
 
-def _body_coordinates(robot: Robot, st) -> np.ndarray:
-    """(n, 7) [t, x, y, z, w] of every body frame from the joint placements in ``robot.data``
-    (after a forward pass); one C call when the kernels are built."""
-    X = np.empty((len(robot.frame_ids), 7))
-    if _mstep.NATIVE:
-        _kernels.frame_coordinates(
-            [pin.SE3ToXYZQUAT(M) for M in robot.data.oMi.tolist()], st.frame_joint, st.frame_offset, X
-        )
-    else:
-        pin.updateFramePlacements(robot.model, robot.data)
-        oMf = robot.data.oMf
-        X[:] = [pin.SE3ToXYZQUAT(oMf[f]) for f in robot.frame_ids]
-    return X
-
-
 def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a ⊗ conj(b) for (n, 4) quaternions in (x, y, z, w) order."""
     av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
@@ -383,7 +368,8 @@ class Tracker:
         inter = union = 0
         for cam, mask in zip(self.cameras, masks):
             model = np.zeros(cam.shape, dtype=bool)
-            for P, li, img in zip(poses, self.inner, body_images(cam, poses, self.inner, 0.5, slack_px=0.0, max_pixels=10**9)):
+            images = body_images(cam, poses, self.inner, 0.5, slack_px=0.0, max_pixels=10**9)
+            for P, li, img in zip(poses, self.inner, images):
                 if img is None:
                     continue
                 a2, _ = _geometry(img, P.rotation, P.translation, li, False)
@@ -419,7 +405,7 @@ class Tracker:
                     continue
                 if _mstep.NATIVE:  # the lines below, per pixel in C (kms2pin/_kernels.c)
                     R = poses[i].rotation
-                    img.s = np.empty(len(img.dirs))  # here softplus(h) = -log(1 - s)
+                    img.s = np.empty(len(img.dirs))  # softplus(h) = -log(1 - s)
                     b = img.box
                     _kernels.estep_body(
                         img.dirs, (R / self.inner[i] ** 2) @ R.T, cam.centre - poses[i].translation,
@@ -430,8 +416,8 @@ class Tracker:
                     continue
                 a2, _ = _geometry(img, poses[i].rotation, poses[i].translation, self.inner[i], False)
                 h = (1.0 - a2) / (2.0 * img.delta)
-                img.s = h  # keep h; log(1 - s) = -log(1 + e^h)
-                log_free[img.slices] -= np.logaddexp(0.0, h).reshape(img.shape)
+                img.s = np.logaddexp(0.0, h)  # softplus(h) = -log(1 - s)
+                log_free[img.slices] -= img.s.reshape(img.shape)
                 if log_free_o is not None:
                     log_free_o[img.slices] -= np.logaddexp(0.0, widen * h).reshape(img.shape)
                 images[i][c] = img
@@ -451,21 +437,19 @@ class Tracker:
                     o, y = np.empty(len(img.s)), np.empty(len(img.s))
                     _kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
                 else:
-                    own = -np.logaddexp(0.0, img.s)
-                    others = log_free[img.slices].ravel() - own
+                    others = log_free[img.slices].ravel() + img.s
                     o = -np.expm1(np.minimum(others, 0.0))
                     y = mask[img.slices].ravel().astype(float)
                 wt = None if weight is None else weight[img.slices].ravel()
                 views[i].append(self._subsampled(img, y, o, wt))
         t1 = time.perf_counter()
         # M-step: every body on its own.
-        targets = np.empty((n, 7))
-        k = np.zeros((n, 7))
         fits = fit_bodies(
             views, poses, self.inner, iterations=self.m_iterations, damping=self.damping, max_step=self.max_step
         )
         t2 = time.perf_counter()
         if self.static == "diagonal":
+            targets, k = np.empty((n, 7)), np.zeros((n, 7))
             for i, fit in enumerate(fits):
                 quat = pin.Quaternion(fit.pose.rotation)
                 theta = np.array([quat.w, quat.x, quat.y, quat.z])
@@ -523,37 +507,30 @@ class Tracker:
         K = Hf.copy()
         K[:, _I6, _I6] += self.stiffness_floor * hmax / S**2
         T = np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])  # (n, 7) [t, x, y, z, w]
-        target_t, target_q = T[:, :3], T[:, 3:]
         st = _structure(robot)
         native = _mstep.NATIVE
         K36 = K.reshape(n, 36)
         for _ in range(self.static_iterations):
             pin.computeJointJacobians(model, data, q)
-            X = _body_coordinates(robot, st)
+            X = body_frames(model, data, robot.frame_ids, st, native)
             if native:  # the lines below in one C call (kms2pin/_kernels.c)
                 A, g = np.empty((nv, nv)), np.empty(nv)
                 _kernels.pose_springs(data.J, X, T, K36, st.support, A, g)
-                A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
-                dq = -np.linalg.solve(A, g)
-                q = pin.integrate(model, q, dq)
-                if np.abs(dq).max() < 1e-7:
-                    break
-                continue
-            # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
-            e = np.empty((n, 6))
-            e[:, :3] = X[:, :3] - target_t
-            e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], target_q))
-            # LOCAL_WORLD_ALIGNED Jacobians at the body centres from data.J (world frame)
-            Jw = data.J
-            J = np.empty((n, 6, nv))
-            J[:, 3:] = Jw[3:][None] * st.support[:, None, :]
-            J[:, :3] = (Jw[:3][None] + np.cross(Jw[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * st.support[
-                :, None, :
-            ]
-            KJ = (K @ J).reshape(6 * n, nv)
-            Jf = J.reshape(6 * n, nv)
-            A = Jf.T @ KJ
-            g = KJ.T @ e.ravel()
+            else:
+                # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
+                e = np.empty((n, 6))
+                e[:, :3] = X[:, :3] - T[:, :3]
+                e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
+                # LOCAL_WORLD_ALIGNED Jacobians at the body centres from data.J (world frame)
+                Jw = data.J
+                J = np.empty((n, 6, nv))
+                J[:, 3:] = Jw[3:][None] * st.support[:, None, :]
+                J[:, :3] = (Jw[:3][None] + np.cross(Jw[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * st.support[
+                    :, None, :
+                ]
+                KJ = (K @ J).reshape(6 * n, nv)
+                A = J.reshape(6 * n, nv).T @ KJ
+                g = KJ.T @ e.ravel()
             A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
             dq = -np.linalg.solve(A, g)
             q = pin.integrate(model, q, dq)
