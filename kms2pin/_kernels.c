@@ -288,6 +288,700 @@ static PyObject *frame_coordinates(PyObject *self, PyObject *const *args, Py_ssi
     Py_RETURN_NONE;
 }
 
+/* solve_shifted(H, grad, shift, step_out) -> bool
+ * Cholesky solve of (H + shift I) step = -grad; False if the matrix is not
+ * positive definite (the Levenberg-Marquardt loop then raises the shift). */
+static PyObject *solve_shifted(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "solve_shifted takes 4 arguments");
+        return NULL;
+    }
+    Buf b[3];
+    memset(b, 0, sizeof(b));
+    if (get_buf(args[0], &b[0], 0, "H") < 0 || get_buf(args[1], &b[1], 0, "grad") < 0 ||
+        get_buf(args[3], &b[2], 1, "step")) {
+        release(b, 3);
+        return NULL;
+    }
+    double shift = PyFloat_AsDouble(args[2]);
+    if (shift == -1.0 && PyErr_Occurred()) {
+        release(b, 3);
+        return NULL;
+    }
+    Py_ssize_t nv = b[0].view.ndim == 2 ? b[0].view.shape[0] : -1;
+    if (check_2d(&b[0], nv, nv, "H") || b[1].view.ndim != 1 || b[1].view.shape[0] != nv || b[2].view.ndim != 1 ||
+        b[2].view.shape[0] != nv) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "grad and step must have H's size");
+        release(b, 3);
+        return NULL;
+    }
+    double *L = (double *)PyMem_Malloc(sizeof(double) * (size_t)(nv * nv + nv + 1));
+    if (L == NULL) {
+        release(b, 3);
+        return PyErr_NoMemory();
+    }
+    double *y = L + nv * nv;
+    int ok = 1;
+    for (Py_ssize_t j = 0; j < nv && ok; j++) {
+        for (Py_ssize_t i = j; i < nv; i++) {
+            double s = AT(b[0], i, j) + (i == j ? shift : 0.0);
+            for (Py_ssize_t m = 0; m < j; m++) s -= L[i * nv + m] * L[j * nv + m];
+            if (i == j) {
+                if (!(s > 0.0) || !isfinite(s)) {
+                    ok = 0;
+                    break;
+                }
+                L[j * nv + j] = sqrt(s);
+            } else {
+                L[i * nv + j] = s / L[j * nv + j];
+            }
+        }
+    }
+    if (ok) {
+        const char *gb = (const char *)b[1].view.buf;
+        Py_ssize_t gs = b[1].view.strides[0];
+        for (Py_ssize_t i = 0; i < nv; i++) {
+            double s = -*(const double *)(gb + i * gs);
+            for (Py_ssize_t m = 0; m < i; m++) s -= L[i * nv + m] * y[m];
+            y[i] = s / L[i * nv + i];
+        }
+        char *sb = (char *)b[2].view.buf;
+        Py_ssize_t ss = b[2].view.strides[0];
+        for (Py_ssize_t i = nv - 1; i >= 0; i--) {
+            double s = y[i];
+            for (Py_ssize_t m = i + 1; m < nv; m++) s -= L[m * nv + i] * *(double *)(sb + m * ss);
+            *(double *)(sb + i * ss) = s / L[i * nv + i];
+        }
+    }
+    PyMem_Free(L);
+    release(b, 3);
+    return PyBool_FromLong(ok);
+}
+
+/* ------------------------------------------------------------------ ECM M-step
+ * Per-pixel arithmetic of kms2pin.ecm.mstep (its module docstring has the model):
+ * for pixel rays d (unit camera depth, world axes), the closest approach of the
+ * ray to the inner ellipsoid in the ellipsoid metric, a^2, and its derivative
+ * with respect to a world translation and rotation of the body.  A = R diag(L^-2) R^T,
+ * e = camera centre - body centre. */
+
+/* |h| beyond which the logistic edge counts as saturated: kms2pin.ecm.mstep.H_CUT */
+#define H_CUT 7.0
+
+static inline double closest_a2(const double *A, const double *e, const double *Ae, const double *d, double *qs,
+                                double *g)
+{
+    double Ad[3];
+    for (int r = 0; r < 3; r++) Ad[r] = A[3 * r] * d[0] + A[3 * r + 1] * d[1] + A[3 * r + 2] * d[2];
+    double dot = dot3(d, Ae), nn = dot3(Ad, d);
+    double s = nn > 0.0 ? -dot / nn : 0.0;
+    if (s < 0.0) s = 0.0;
+    for (int c = 0; c < 3; c++) {
+        qs[c] = e[c] + s * d[c];
+        g[c] = Ae[c] + s * Ad[c];
+    }
+    return dot3(qs, g);
+}
+
+static int vec_arg(PyObject *obj, Buf *b, Py_ssize_t n, int writable, const char *name)
+{
+    if (get_buf(obj, b, writable, name) < 0) return -1;
+    if (b->view.ndim != 1 || (n >= 0 && b->view.shape[0] != n)) {
+        PyErr_Format(PyExc_ValueError, "%s has the wrong shape", name);
+        return -1;
+    }
+    return 0;
+}
+
+#define V(b, i) (*(double *)((char *)(b).view.buf + (i) * (b).view.strides[0]))
+
+static int small_args(PyObject *Aobj, PyObject *eobj, double *A, double *e)
+{
+    Buf a, v;
+    memset(&a, 0, sizeof(a));
+    memset(&v, 0, sizeof(v));
+    if (get_buf(Aobj, &a, 0, "A") < 0 || check_2d(&a, 3, 3, "A") || vec_arg(eobj, &v, 3, 0, "e") < 0) {
+        release(&a, 1);
+        release(&v, 1);
+        return -1;
+    }
+    for (int r = 0; r < 3; r++) {
+        e[r] = V(v, r);
+        for (int c = 0; c < 3; c++) A[3 * r + c] = AT(a, r, c);
+    }
+    release(&a, 1);
+    release(&v, 1);
+    return 0;
+}
+
+/* ellipsoid_a2(dirs, A, e, out): a^2 of every ray (out (N,)). */
+static PyObject *ellipsoid_a2(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "ellipsoid_a2(dirs, A, e, out)");
+        return NULL;
+    }
+    double A[9], e[3], Ae[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    Buf b[2];
+    memset(b, 0, sizeof(b));
+    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs") ||
+        vec_arg(args[3], &b[1], b[0].view.shape[0], 1, "out") < 0) {
+        release(b, 2);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    Py_ssize_t N = b[0].view.shape[0];
+    for (Py_ssize_t i = 0; i < N; i++) {
+        double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+        V(b[1], i) = closest_a2(A, e, Ae, d, qs, g);
+    }
+    release(b, 2);
+    Py_RETURN_NONE;
+}
+
+typedef struct {
+    Buf dirs, y, o, w;
+    double centre[3];
+    double inv;
+    int has_w;
+} View;
+
+static void release_views(View *v, Py_ssize_t n)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {
+        release(&v[i].dirs, 1);
+        release(&v[i].y, 1);
+        release(&v[i].o, 1);
+        release(&v[i].w, 1);
+    }
+}
+
+/* The per-pixel sums of one view (kms2pin.ecm.mstep._evaluate), added to cost,
+ * evidence, g6 (6) and Hu (the 21 entries of the upper triangle of H, row by row). */
+static void view_accumulate(const View *v, const double *A, const double *t, int jac, double *cost_io,
+                            double *evid_io, double *g6, double *Hu)
+{
+    double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    Py_ssize_t N = v->dirs.view.shape[0];
+    double inv = v->inv, cost = 0.0, evidence = 0.0, hu[21] = {0}, gl[6] = {0}; /* local: no aliasing */
+    for (Py_ssize_t i = 0; i < N; i++) {
+        double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
+        double a2 = closest_a2(A, e, Ae, d, qs, g);
+        double h = (1.0 - a2) * inv;
+        /* s = sigma(h) and 1 - s = sigma(-h) from one exp, without overflow */
+        double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+        double s = h >= 0 ? s1 : s0;
+        double y = V(v->y, i), o = V(v->o, i), wt = v->has_w ? V(v->w, i) : 1.0;
+        double fr = 1.0 - o;
+        double r = y - o - fr * s;
+        cost += wt * r * r;
+        if (!jac) continue;
+        evidence += wt * fr * s * y;
+        if (!(fabs(h) < H_CUT)) continue; /* saturated edge: no gradient */
+        double w = fr * s0 * s1 * inv;
+        if (!(w > 0.0)) continue;
+        double J[6], qxg[3];
+        cross(qs, g, qxg);
+        for (int c = 0; c < 3; c++) {
+            J[c] = -2.0 * g[c] * w;
+            J[3 + c] = -2.0 * qxg[c] * w;
+        }
+        int m = 0;
+        for (int a = 0; a < 6; a++) {
+            double ja = wt * J[a];
+            gl[a] += ja * r;
+            for (int c = a; c < 6; c++) hu[m++] += ja * J[c];
+        }
+    }
+    *cost_io += cost;
+    *evid_io += evidence;
+    for (int a = 0; a < 6; a++) g6[a] += gl[a];
+    for (int m = 0; m < 21; m++) Hu[m] += hu[m];
+}
+
+/* silhouette_fit(dirs, A, e, inv, y, o, weight|None, jac, H, grad) -> (cost, evidence)
+ * For the sharp silhouette s = sigma((1 - a^2) inv) of one body in one view:
+ * r = y - o - (1 - o) s, cost = sum wt r^2, evidence = sum wt (1 - o) s y; with jac,
+ * adds J^T wt J to H (6x6) and J^T wt r to grad (6), J = dr/d(delta t, omega) over
+ * the pixels on the edge, |h| < H_CUT, h = (1 - a^2) inv. */
+static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_fit takes 10 arguments");
+        return NULL;
+    }
+    double A[9], e[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    View v;
+    memset(&v, 0, sizeof(v));
+    v.inv = PyFloat_AsDouble(args[3]);
+    if (v.inv == -1.0 && PyErr_Occurred()) return NULL;
+    int jac = PyObject_IsTrue(args[7]);
+    if (jac < 0) return NULL;
+    v.has_w = args[6] != Py_None;
+    for (int c = 0; c < 3; c++) v.centre[c] = e[c]; /* with t = 0 below: centre - t = e */
+    Buf b[2];
+    memset(b, 0, sizeof(b));
+    int ok = get_buf(args[0], &v.dirs, 0, "dirs") == 0 && check_2d(&v.dirs, -1, 3, "dirs") == 0;
+    Py_ssize_t N = ok ? v.dirs.view.shape[0] : 0;
+    ok = ok && vec_arg(args[4], &v.y, N, 0, "y") == 0 && vec_arg(args[5], &v.o, N, 0, "o") == 0 &&
+         (!v.has_w || vec_arg(args[6], &v.w, N, 0, "weight") == 0) && get_buf(args[8], &b[0], 1, "H") == 0 &&
+         check_2d(&b[0], 6, 6, "H") == 0 && vec_arg(args[9], &b[1], 6, 1, "grad") == 0;
+    if (!ok) {
+        release_views(&v, 1);
+        release(b, 2);
+        return NULL;
+    }
+    double cost = 0.0, evidence = 0.0, Hu[21] = {0}, g6[6] = {0}, zero[3] = {0.0, 0.0, 0.0};
+    view_accumulate(&v, A, zero, jac, &cost, &evidence, g6, Hu);
+    if (jac) {
+        int k = 0;
+        for (int a = 0; a < 6; a++) {
+            V(b[1], a) += g6[a];
+            for (int c = a; c < 6; c++, k++) {
+                AT(b[0], a, c) += Hu[k];
+                if (c != a) AT(b[0], c, a) += Hu[k];
+            }
+        }
+    }
+    release_views(&v, 1);
+    release(b, 2);
+    return Py_BuildValue("(dd)", cost, evidence);
+}
+
+/* ------------------------------------------------------------------ ECM E-step
+ * kms2pin.ecm.tracker.Tracker.iterate's E-step per pixel: each body's sharp
+ * silhouette s = sigma(h) on its box, the union's log(1 - M) = sum_j log(1 - s_j)
+ * = -sum_j softplus(h_j) per camera, then for every body the share of each pixel
+ * the others explain, o = 1 - exp(log(1 - M) + softplus(h_i)). */
+
+static inline double softplus(double h) { return (h > 0 ? h : 0.0) + log1p(exp(-fabs(h))); }
+
+static int image_arg(PyObject *obj, Buf *b, int writable, const char *name, int bytes)
+{
+    int flags = PyBUF_STRIDES | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b->view, flags) < 0) return -1;
+    b->held = 1;
+    int fmt_ok = bytes ? (b->view.itemsize == 1 && b->view.format && (!strcmp(b->view.format, "?") || !strcmp(b->view.format, "B")))
+                       : (b->view.itemsize == 8 && b->view.format && !strcmp(b->view.format, "d"));
+    if (!fmt_ok || b->view.ndim != 2) {
+        PyErr_Format(PyExc_TypeError, "%s must be a 2-D %s image", name, bytes ? "bool/uint8" : "float64");
+        return -1;
+    }
+    return 0;
+}
+
+static int box_arg(PyObject *const *args, const Buf *img, Py_ssize_t N, Py_ssize_t *box)
+{
+    for (int k = 0; k < 4; k++) {
+        box[k] = PyLong_AsSsize_t(args[k]);
+        if (box[k] == -1 && PyErr_Occurred()) return -1;
+    }
+    /* v0, u0, rows, cols */
+    if (box[0] < 0 || box[1] < 0 || box[2] < 0 || box[3] < 0 || box[0] + box[2] > img->view.shape[0] ||
+        box[1] + box[3] > img->view.shape[1] || box[2] * box[3] != N) {
+        PyErr_SetString(PyExc_ValueError, "box does not fit the image or the pixel count");
+        return -1;
+    }
+    return 0;
+}
+
+/* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp_out, log_free_o|None, widen)
+ * h = (1 - a^2) inv on the box; sp = softplus(h) = -log(1 - s); log_free[box] -= sp;
+ * with log_free_o also log_free_o[box] -= softplus(widen h). */
+static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "estep_body takes 12 arguments");
+        return NULL;
+    }
+    double A[9], e[3], Ae[3];
+    if (small_args(args[1], args[2], A, e) < 0) return NULL;
+    double inv = PyFloat_AsDouble(args[3]), widen = PyFloat_AsDouble(args[11]);
+    if (PyErr_Occurred()) return NULL;
+    int has_o = args[10] != Py_None;
+    Buf b[4];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t box[4];
+    if (get_buf(args[0], &b[0], 0, "dirs") < 0 || check_2d(&b[0], -1, 3, "dirs") ||
+        image_arg(args[4], &b[1], 1, "log_free", 0) < 0 || box_arg(args + 5, &b[1], b[0].view.shape[0], box) < 0 ||
+        vec_arg(args[9], &b[2], b[0].view.shape[0], 1, "sp") < 0 ||
+        (has_o && (image_arg(args[10], &b[3], 1, "log_free_o", 0) < 0 ||
+                   box_arg(args + 5, &b[3], b[0].view.shape[0], box) < 0))) {
+        release(b, 4);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    Py_ssize_t i = 0;
+    for (Py_ssize_t r = 0; r < box[2]; r++)
+        for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
+            double d[3] = {AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2)}, qs[3], g[3];
+            double h = (1.0 - closest_a2(A, e, Ae, d, qs, g)) * inv, sp = softplus(h);
+            V(b[2], i) = sp;
+            AT(b[1], box[0] + r, box[1] + c) -= sp;
+            if (has_o) AT(b[3], box[0] + r, box[1] + c) -= softplus(widen * h);
+        }
+    release(b, 4);
+    Py_RETURN_NONE;
+}
+
+/* estep_view(log_free, mask, v0, u0, rows, cols, sp, o_out, y_out):
+ * o = 1 - exp(min(log_free[box] + sp, 0)), y = mask[box] (0/1); sp from estep_body. */
+static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "estep_view takes 9 arguments");
+        return NULL;
+    }
+    Buf b[5];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t box[4];
+    if (vec_arg(args[6], &b[2], -1, 0, "sp") < 0 || image_arg(args[0], &b[0], 0, "log_free", 0) < 0 ||
+        image_arg(args[1], &b[1], 0, "mask", 1) < 0 || box_arg(args + 2, &b[0], b[2].view.shape[0], box) < 0 ||
+        box_arg(args + 2, &b[1], b[2].view.shape[0], box) < 0 ||
+        vec_arg(args[7], &b[3], b[2].view.shape[0], 1, "o") < 0 ||
+        vec_arg(args[8], &b[4], b[2].view.shape[0], 1, "y") < 0) {
+        release(b, 5);
+        return NULL;
+    }
+    Py_ssize_t i = 0;
+    for (Py_ssize_t r = 0; r < box[2]; r++)
+        for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
+            double others = AT(b[0], box[0] + r, box[1] + c) + V(b[2], i);
+            V(b[3], i) = -expm1(others < 0 ? others : 0.0);
+            const unsigned char *m =
+                (const unsigned char *)b[1].view.buf + (box[0] + r) * b[1].view.strides[0] + (box[1] + c) * b[1].view.strides[1];
+            V(b[4], i) = *m ? 1.0 : 0.0;
+        }
+    release(b, 5);
+    Py_RETURN_NONE;
+}
+
+/* pose_springs(J, X, T, K, S, A_out, g_out)
+ * The tracker's static update with a full 6x6 spring per body
+ * (kms2pin.ecm.tracker.Tracker._static_update_full): body i's pose error
+ * e_i = (t_i - t'_i, log(R_i R'_i^T)) from X and T (n, 7) [t, x, y, z, w], its
+ * LOCAL_WORLD_ALIGNED Jacobian J_i (6 x nv) at the body centre from Pinocchio's data.J
+ * (world frame) and the support mask S (n, nv); K (n, 36) row-major 6x6 stiffness.
+ * A = sum J_i^T K_i J_i, g = sum J_i^T K_i e_i. */
+static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "pose_springs(J, X, T, K, S, A, g)");
+        return NULL;
+    }
+    Buf b[7];
+    memset(b, 0, sizeof(b));
+    static const char *names[7] = {"J", "X", "T", "K", "S", "A", "g"};
+    for (int i = 0; i < 7; i++) {
+        if (get_buf(args[i], &b[i], i >= 5, names[i]) < 0) {
+            release(b, 7);
+            return NULL;
+        }
+    }
+    Py_ssize_t nv = b[0].view.ndim == 2 ? b[0].view.shape[1] : -1;
+    Py_ssize_t n = b[1].view.ndim == 2 ? b[1].view.shape[0] : -1;
+    if (check_2d(&b[0], 6, -1, "J") || check_2d(&b[1], -1, 7, "X") || check_2d(&b[2], n, 7, "T") ||
+        check_2d(&b[3], n, 36, "K") || check_2d(&b[4], n, nv, "S") || check_2d(&b[5], nv, nv, "A") ||
+        b[6].view.ndim != 1 || b[6].view.shape[0] != nv) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "g has the wrong shape");
+        release(b, 7);
+        return NULL;
+    }
+    double *Jb = (double *)PyMem_Malloc(sizeof(double) * (size_t)(12 * nv + 1));
+    if (Jb == NULL) {
+        release(b, 7);
+        return PyErr_NoMemory();
+    }
+    double *KJ = Jb + 6 * nv;
+    for (Py_ssize_t a = 0; a < nv; a++) {
+        V(b[6], a) = 0.0;
+        for (Py_ssize_t c = 0; c < nv; c++) AT(b[5], a, c) = 0.0;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double p[3] = {AT(b[1], i, 0), AT(b[1], i, 1), AT(b[1], i, 2)};
+        double qa[4] = {AT(b[1], i, 3), AT(b[1], i, 4), AT(b[1], i, 5), AT(b[1], i, 6)};
+        double qb[4] = {AT(b[2], i, 3), AT(b[2], i, 4), AT(b[2], i, 5), AT(b[2], i, 6)};
+        double e[6];
+        for (int c = 0; c < 3; c++) e[c] = p[c] - AT(b[2], i, c);
+        /* relative rotation qa (x) conj(qb), then its rotation vector (angle in [0, pi]) */
+        double bxv[3], v[3];
+        cross(qa, qb, bxv);
+        double w = qa[3] * qb[3] + dot3(qa, qb);
+        for (int c = 0; c < 3; c++) v[c] = qb[3] * qa[c] - qa[3] * qb[c] - bxv[c];
+        if (w < 0) {
+            w = -w;
+            for (int c = 0; c < 3; c++) v[c] = -v[c];
+        }
+        double nrm = sqrt(dot3(v, v));
+        double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
+        for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
+        /* J_i: rows (linear at p; angular), supported columns only */
+        for (Py_ssize_t a = 0; a < nv; a++) {
+            double sa = AT(b[4], i, a);
+            double om[3] = {AT(b[0], 3, a), AT(b[0], 4, a), AT(b[0], 5, a)}, oxp[3];
+            cross(om, p, oxp);
+            for (int c = 0; c < 3; c++) {
+                Jb[c * nv + a] = sa * (AT(b[0], c, a) + oxp[c]);
+                Jb[(3 + c) * nv + a] = sa * om[c];
+            }
+        }
+        for (int r = 0; r < 6; r++)
+            for (Py_ssize_t a = 0; a < nv; a++) {
+                double s = 0.0;
+                for (int c = 0; c < 6; c++) s += AT(b[3], i, 6 * r + c) * Jb[c * nv + a];
+                KJ[r * nv + a] = s;
+            }
+        for (Py_ssize_t a = 0; a < nv; a++) {
+            if (AT(b[4], i, a) == 0.0) continue;
+            double ga = 0.0;
+            for (int r = 0; r < 6; r++) ga += KJ[r * nv + a] * e[r];
+            V(b[6], a) += ga;
+            for (Py_ssize_t c = 0; c < nv; c++) {
+                if (AT(b[4], i, c) == 0.0) continue;
+                double s = 0.0;
+                for (int r = 0; r < 6; r++) s += Jb[r * nv + a] * KJ[r * nv + c];
+                AT(b[5], a, c) += s;
+            }
+        }
+    }
+    PyMem_Free(Jb);
+    release(b, 7);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ one body's M-step
+ * kms2pin.ecm.mstep.fit_body in C: damped Gauss-Newton on the body's world pose
+ * (translation, rotation vector), every camera's view at once.  The Python function
+ * is the definition; this is the same loop with the per-pixel sums of silhouette_fit. */
+
+/* cost, evidence, and (jac) grad (6) and H (6x6, row-major) of one pose over all views */
+static void views_eval(const View *views, Py_ssize_t nv, const double *R, const double *t, const double *inner,
+                       int jac, double *cost_out, double *evid_out, double *grad, double *H)
+{
+    double A[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double s = 0.0;
+            for (int k = 0; k < 3; k++) s += R[3 * r + k] * R[3 * c + k] / (inner[k] * inner[k]);
+            A[3 * r + c] = s;
+        }
+    double Hu[21] = {0};
+    *cost_out = *evid_out = 0.0;
+    for (int a = 0; a < 6; a++) grad[a] = 0.0;
+    for (Py_ssize_t k = 0; k < nv; k++) view_accumulate(&views[k], A, t, jac, cost_out, evid_out, grad, Hu);
+    if (jac) {
+        int m = 0;
+        for (int a = 0; a < 6; a++)
+            for (int c = a; c < 6; c++, m++) H[6 * a + c] = H[6 * c + a] = Hu[m];
+    }
+}
+
+/* R <- exp([w]x) R (Rodrigues) */
+static void rotate_by(const double *w, double *R)
+{
+    double th = sqrt(dot3(w, w)), E[9];
+    double a, b;
+    if (th < 1e-8) {
+        a = 1.0 - th * th / 6.0;
+        b = 0.5 - th * th / 24.0;
+    } else {
+        a = sin(th) / th;
+        b = (1.0 - cos(th)) / (th * th);
+    }
+    double K[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0};
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double kk = 0.0;
+            for (int m = 0; m < 3; m++) kk += K[3 * r + m] * K[3 * m + c];
+            E[3 * r + c] = (r == c ? 1.0 : 0.0) + a * K[3 * r + c] + b * kk;
+        }
+    double out[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) out[3 * r + c] = E[3 * r] * R[c] + E[3 * r + 1] * R[3 + c] + E[3 * r + 2] * R[6 + c];
+    memcpy(R, out, sizeof(out));
+}
+
+/* solve (M + shift I) x = -g for a 6x6 symmetric M by Cholesky; 0 if not positive definite */
+static int chol6(const double *M, double shift, const double *g, double *x)
+{
+    double L[36] = {0}, y[6];
+    for (int j = 0; j < 6; j++) {
+        for (int i = j; i < 6; i++) {
+            double s = M[6 * i + j] + (i == j ? shift : 0.0);
+            for (int k = 0; k < j; k++) s -= L[6 * i + k] * L[6 * j + k];
+            if (i == j) {
+                if (!(s > 0.0) || !isfinite(s)) return 0;
+                L[6 * j + j] = sqrt(s);
+            } else {
+                L[6 * i + j] = s / L[6 * j + j];
+            }
+        }
+    }
+    for (int i = 0; i < 6; i++) {
+        double s = -g[i];
+        for (int k = 0; k < i; k++) s -= L[6 * i + k] * y[k];
+        y[i] = s / L[6 * i + i];
+    }
+    for (int i = 5; i >= 0; i--) {
+        double s = y[i];
+        for (int k = i + 1; k < 6; k++) s -= L[6 * k + i] * x[k];
+        x[i] = s / L[6 * i + i];
+    }
+    return 1;
+}
+
+/* fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out)
+ *     -> (evidence, cost)
+ * views: list of (dirs (N,3), camera centre (3,), inv = 1/(2 delta), y, o, weight|None).
+ * max_step <= 0: no cap. */
+static PyObject *fit_body(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10 || !PyList_Check(args[0])) {
+        PyErr_SetString(PyExc_TypeError, "fit_body(views, R, t, inner, iterations, damping, max_step, R, t, H)");
+        return NULL;
+    }
+    Py_ssize_t nv = PyList_GET_SIZE(args[0]);
+    View *views = (View *)PyMem_Calloc((size_t)(nv > 0 ? nv : 1), sizeof(View));
+    if (views == NULL) return PyErr_NoMemory();
+    Buf b[6];
+    memset(b, 0, sizeof(b));
+    double R[9], t[3], inner[3];
+    int ok = 1;
+    for (Py_ssize_t k = 0; k < nv && ok; k++) {
+        PyObject *tup = PyList_GET_ITEM(args[0], k);
+        if (!PyTuple_Check(tup) || PyTuple_GET_SIZE(tup) != 6) {
+            PyErr_SetString(PyExc_TypeError, "a view is (dirs, centre, inv, y, o, weight)");
+            ok = 0;
+            break;
+        }
+        View *v = &views[k];
+        Buf c;
+        memset(&c, 0, sizeof(c));
+        if (get_buf(PyTuple_GET_ITEM(tup, 0), &v->dirs, 0, "dirs") < 0 || check_2d(&v->dirs, -1, 3, "dirs") ||
+            vec_arg(PyTuple_GET_ITEM(tup, 1), &c, 3, 0, "centre") < 0) {
+            release(&c, 1);
+            ok = 0;
+            break;
+        }
+        for (int r = 0; r < 3; r++) v->centre[r] = V(c, r);
+        release(&c, 1);
+        v->inv = PyFloat_AsDouble(PyTuple_GET_ITEM(tup, 2));
+        if (v->inv == -1.0 && PyErr_Occurred()) {
+            ok = 0;
+            break;
+        }
+        Py_ssize_t N = v->dirs.view.shape[0];
+        PyObject *wobj = PyTuple_GET_ITEM(tup, 5);
+        v->has_w = wobj != Py_None;
+        if (vec_arg(PyTuple_GET_ITEM(tup, 3), &v->y, N, 0, "y") < 0 ||
+            vec_arg(PyTuple_GET_ITEM(tup, 4), &v->o, N, 0, "o") < 0 ||
+            (v->has_w && vec_arg(wobj, &v->w, N, 0, "weight") < 0)) {
+            ok = 0;
+            break;
+        }
+    }
+    if (ok) {
+        if (get_buf(args[1], &b[0], 0, "R") < 0 || check_2d(&b[0], 3, 3, "R") || vec_arg(args[2], &b[1], 3, 0, "t") < 0 ||
+            vec_arg(args[3], &b[2], 3, 0, "inner") < 0 || get_buf(args[7], &b[3], 1, "R_out") < 0 ||
+            check_2d(&b[3], 3, 3, "R_out") || vec_arg(args[8], &b[4], 3, 1, "t_out") < 0 ||
+            get_buf(args[9], &b[5], 1, "H_out") < 0 || check_2d(&b[5], 6, 6, "H_out"))
+            ok = 0;
+    }
+    long iterations = ok ? PyLong_AsLong(args[4]) : 0;
+    double damping = ok ? PyFloat_AsDouble(args[5]) : 0.0;
+    double max_step = ok ? PyFloat_AsDouble(args[6]) : 0.0;
+    if (ok && PyErr_Occurred()) ok = 0;
+    if (!ok) {
+        release_views(views, nv);
+        PyMem_Free(views);
+        release(b, 6);
+        return NULL;
+    }
+    for (int r = 0; r < 3; r++) {
+        t[r] = V(b[1], r);
+        inner[r] = V(b[2], r);
+        for (int c = 0; c < 3; c++) R[3 * r + c] = AT(b[0], r, c);
+    }
+    double cost = 0.0, evidence = 0.0, grad[6] = {0}, H[36] = {0};
+    Py_BEGIN_ALLOW_THREADS
+    if (nv > 0) views_eval(views, nv, R, t, inner, 1, &cost, &evidence, grad, H);
+    int any = 0;
+    for (int m = 0; m < 36; m++) any |= H[m] != 0.0;
+    if (any) {
+        double size = (inner[0] + inner[1] + inner[2]) / 3.0;
+        double S[6] = {size, size, size, 1.0, 1.0, 1.0}, Hn[36], offset[6] = {0};
+        double dmax = 0.0;
+        for (int a = 0; a < 6; a++) dmax = fmax(dmax, S[a] * H[7 * a] * S[a]);
+        double prior = damping * fmax(dmax, 1e-12);
+        double lam = 1e-3;
+        for (long it = 0; it < iterations; it++) {
+            double gn[6], hmax = -INFINITY;
+            for (int a = 0; a < 6; a++) {
+                for (int c = 0; c < 6; c++) Hn[6 * a + c] = S[a] * H[6 * a + c] * S[c];
+                gn[a] = S[a] * grad[a] + prior * offset[a] / S[a];
+                hmax = fmax(hmax, Hn[7 * a]);
+            }
+            int improved = 0;
+            for (int tries = 0; tries < 6; tries++) {
+                double stepn[6], step[6];
+                if (!chol6(Hn, prior + lam * hmax, gn, stepn)) break;
+                if (max_step > 0.0) {
+                    double big = fmax(sqrt(dot3(stepn, stepn)), sqrt(dot3(stepn + 3, stepn + 3)));
+                    double f = fmin(1.0, max_step / fmax(big, 1e-300));
+                    for (int a = 0; a < 6; a++) stepn[a] *= f;
+                }
+                double R2[9], t2[3], c2, e2, g2[6], H2[36], p_old = 0.0, p_new = 0.0, off2[6];
+                for (int a = 0; a < 6; a++) {
+                    step[a] = stepn[a] * S[a];
+                    off2[a] = offset[a] + step[a];
+                    p_old += (offset[a] / S[a]) * (offset[a] / S[a]);
+                    p_new += (off2[a] / S[a]) * (off2[a] / S[a]);
+                }
+                memcpy(R2, R, sizeof(R2));
+                rotate_by(step + 3, R2);
+                for (int r = 0; r < 3; r++) t2[r] = t[r] + step[r];
+                views_eval(views, nv, R2, t2, inner, 1, &c2, &e2, g2, H2);
+                if (0.5 * c2 + 0.5 * prior * p_new <= 0.5 * cost + 0.5 * prior * p_old) {
+                    memcpy(R, R2, sizeof(R2));
+                    memcpy(t, t2, sizeof(t2));
+                    memcpy(offset, off2, sizeof(off2));
+                    memcpy(grad, g2, sizeof(g2));
+                    memcpy(H, H2, sizeof(H2));
+                    cost = c2;
+                    evidence = e2;
+                    lam = fmax(lam * 0.3, 1e-6);
+                    improved = 1;
+                    break;
+                }
+                lam *= 10.0;
+            }
+            if (!improved) break;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    for (int r = 0; r < 3; r++) {
+        V(b[4], r) = t[r];
+        for (int c = 0; c < 3; c++) AT(b[3], r, c) = R[3 * r + c];
+    }
+    for (int a = 0; a < 6; a++)
+        for (int c = 0; c < 6; c++) AT(b[5], a, c) = H[6 * a + c];
+    release_views(views, nv);
+    PyMem_Free(views);
+    release(b, 6);
+    return Py_BuildValue("(dd)", evidence, cost);
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
