@@ -39,6 +39,9 @@ def test_synth_track_evaluate(tmp_path, cams2, capsys):
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(out)]) == 0
     for name in ("trajectory.csv", "poses.npz", "overlay.mp4", "model.kms", "meta.json"):
         assert (out / name).is_file(), name
+    with np.load(out / "poses.npz") as z:  # body sizes measured on frame 0: synth used the model's
+        assert z["body_scales"].shape == (z["body_poses"].shape[1], 3)
+        assert np.median(np.abs(z["body_scales"] - 1.0)) < 0.03
     capsys.readouterr()
     assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)

@@ -63,6 +63,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
+    p.add_argument("--no-size-calibration", action="store_true",
+                   help="keep the spec's body sizes (default: measure them on the first frame, whose "
+                        "pose is taken to be the rest pose or --init POSE; not with --init auto)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
@@ -130,13 +133,16 @@ def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
     return img > 0
 
 
-def _overlay(robot: Robot, cameras, masks, q) -> np.ndarray:
+def _overlay(robot: Robot, cameras, masks, q, scales=None) -> np.ndarray:
+    """The masks with the projected outer (orange) and inner (green) ellipses at ``q``,
+    the body sizes times ``scales`` (the tracker's calibrated sizes)."""
     poses = robot.body_poses(q)
+    scales = np.ones((len(robot.bodies), 3)) if scales is None else scales
     tiles = []
     for cam, m in zip(cameras, masks):
         img = cv2.cvtColor(m.astype(np.uint8) * 160, cv2.COLOR_GRAY2BGR)
-        for P, b in zip(poses, robot.bodies):
-            for axes, colour in ((robot.outer(b), (0, 200, 255)), (robot.inner(b), (0, 255, 0))):
+        for P, b, f in zip(poses, robot.bodies, scales):
+            for axes, colour in ((robot.outer(b) * f, (0, 200, 255)), (robot.inner(b) * f, (0, 255, 0))):
                 try:
                     e = ellipse_parameters(ellipsoid_conic(cam, P, axes))
                 except (ProjectionError, np.linalg.LinAlgError):
@@ -239,7 +245,9 @@ def run(args: argparse.Namespace) -> int:
     init_fit = None
     if auto:
         q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
-    tracker = Tracker(robot, cameras, q0=q0)
+    # body sizes are measured on the first frame only where its pose is known (the rest pose
+    # or --init POSE): at a pose found by the search they would absorb its errors
+    tracker = Tracker(robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto))
     try:
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(args.spec, out / "model.kms")
@@ -287,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
                 qs.append(r.q)
                 results.append(r)
                 if not args.no_video:
-                    img = _overlay(robot, cameras, masks, r.q)
+                    img = _overlay(robot, cameras, masks, r.q, tracker.scales)
                     if video is None:
                         video = cv2.VideoWriter(str(out / "overlay.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                                                 args.fps, (img.shape[1], img.shape[0]))
@@ -298,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
         if video is not None:
             video.release()
         if qs:
-            Trajectory(robot, np.array(qs), results).to_npz(out / "poses.npz")
+            Trajectory(robot, np.array(qs), results, scales=tracker.scales).to_npz(out / "poses.npz")
     if interrupted:
         print(f"interrupted after {len(qs)} frame(s); outputs in {out} are complete up to there", file=sys.stderr)
         raise KeyboardInterrupt

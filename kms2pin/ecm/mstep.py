@@ -388,3 +388,79 @@ def fit_bodies(
         fit_body(v, p, np.asarray(L, dtype=float), iterations=iterations, damping=damping, max_step=max_step)
         for v, p, L in zip(views, poses0, inners)
     ]
+
+
+def _scale_evaluate(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inner: np.ndarray):
+    """Cost, gradient and Gauss-Newton matrix (3x3) of one body's silhouette fit in the
+    log semi-axes of its inner ellipsoid, the pose held (:func:`fit_body_scale`)."""
+    cost, grad, H = 0.0, np.zeros(3), np.zeros((3, 3))
+    A = (R / inner**2) @ R.T
+    for v in views:
+        d = v.image.dirs
+        e = v.image.camera.centre - t
+        Ae, Ad = A @ e, d @ A
+        s_ray = np.maximum(-(d @ Ae) / np.einsum("ij,ij->i", Ad, d), 0.0)
+        qs = e + s_ray[:, None] * d  # closest point of each ray, relative to the centre
+        xb = (qs @ R) / inner  # in the body frame, in semi-axes
+        a2 = np.einsum("ij,ij->i", xb, xb)
+        inv = 1.0 / (2.0 * v.image.delta)
+        h = (1.0 - a2) * inv
+        sig = sigmoid(h)
+        free = 1.0 - v.o
+        r = v.y - v.o - free * sig
+        wt = 1.0 if v.weight is None else v.weight
+        cost += float((wt * r) @ r)
+        # a² = Σ_k (r_k·q*)² / L_k², so d(a²)/d log L_k = -2 x_k² (envelope theorem in s*)
+        w = free * sig * (1.0 - sig) * inv
+        act = (np.abs(h) < H_CUT) & (w > 0)
+        J = (-2.0 * xb[act] ** 2) * w[act, None]  # dr/d log L = free s(1-s) inv d(a²)/d log L
+        Jw = J if v.weight is None else J * v.weight[act, None]
+        H += Jw.T @ J
+        grad += Jw.T @ r[act]
+    return cost, grad, H
+
+
+def fit_body_scale(
+    views: Sequence[BodyView],
+    pose: pin.SE3,
+    inner: np.ndarray,
+    *,
+    iterations: int = 4,
+    prior: float = 1e-2,
+    max_log_scale: float = 0.35,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis scale of a body's inner ellipsoid fitted to its views with its pose held.
+
+    The same silhouette cost as :func:`fit_body` (module docstring), minimized over
+    ``log L_k`` (the body's semi-axes) by damped Gauss-Newton.  ``prior`` pulls
+    towards the given size, relative to the data's largest curvature, so an axis the
+    images do not see (one along every camera's viewing ray) keeps its size; each
+    log-scale stays within ``±max_log_scale``.  Returns the factors (3,) that multiply
+    ``inner`` and the Gauss-Newton matrix (3x3, in log semi-axes) at the result.
+    """
+    inner = np.asarray(inner, dtype=float)
+    R, t = np.asarray(pose.rotation), np.asarray(pose.translation)
+    x = np.zeros(3)
+    if not views:
+        return np.ones(3), np.zeros((3, 3))
+    cost, grad, H = _scale_evaluate(views, R, t, inner)
+    if not np.any(H):
+        return np.ones(3), H
+    lam_p = prior * float(np.max(np.diag(H)))
+    lam = 1e-3
+    for _ in range(iterations):
+        improved = False
+        for _ in range(6):
+            A = H + (lam_p + lam * float(np.max(np.diag(H)))) * np.eye(3)
+            step = -np.linalg.solve(A, grad + lam_p * x)
+            x_new = np.clip(x + step, -max_log_scale, max_log_scale)
+            c2, g2, H2 = _scale_evaluate(views, R, t, inner * np.exp(x_new))
+            if 0.5 * c2 + 0.5 * lam_p * x_new @ x_new <= 0.5 * cost + 0.5 * lam_p * x @ x:
+                x, cost, grad, H = x_new, c2, g2, H2
+                lam = max(lam * 0.3, 1e-6)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            break
+    return np.exp(x), H

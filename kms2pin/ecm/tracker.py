@@ -42,7 +42,7 @@ from ..robot import Robot
 from ..virtual_work import _structure, body_frames, static_update
 from . import mstep as _mstep
 from .camera import Camera
-from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, world_rays
+from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, fit_body_scale, world_rays
 from .projection import body_bbox
 
 
@@ -79,10 +79,12 @@ class Trajectory:
     ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``.
     """
 
-    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = ()):
+    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = (), scales=None):
         self.robot = robot
         self.q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
         self.results = list(results)
+        #: (n_bodies, 3) semi-axis factors of the tracked model (:meth:`Tracker.calibrate`)
+        self.scales = None if scales is None else np.asarray(scales, dtype=float)
 
     def __len__(self) -> int:
         return len(self.q)
@@ -123,7 +125,8 @@ class Trajectory:
                 w.writerow([k, *(f"{x:.10g}" for x in row), *tail])
 
     def to_npz(self, path: str | os.PathLike) -> None:
-        """Body poses (T, n_bodies, 7) maximal coordinates, q (T, nq), body and joint names."""
+        """Body poses (T, n_bodies, 7) maximal coordinates, q (T, nq), body and joint names,
+        fits and the body-size factors (n_bodies, 3) the tracker used."""
         poses = np.array([self.robot.maximal_coordinates(q) for q in self.q])
         np.savez_compressed(
             path,
@@ -132,6 +135,7 @@ class Trajectory:
             bodies=np.array(self.robot.bodies),
             joint_names=np.array(self.robot.joint_names),
             fit=np.array([r.fit for r in self.results]) if self.results else np.zeros(0),
+            body_scales=np.ones((len(self.robot.bodies), 3)) if self.scales is None else self.scales,
         )
 
     @classmethod
@@ -209,6 +213,8 @@ def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 _I6 = np.arange(6)
+#: bounds of the calibrated body sizes relative to the model's (:meth:`Tracker.calibrate`)
+_SCALE_MIN, _SCALE_MAX = float(np.exp(-0.35)), float(np.exp(0.35))
 
 
 def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -298,6 +304,9 @@ class Tracker:
         max_step: float | None = 0.5,
         poor_fit: float = 0.5,
         max_prediction_deg: float = 20.0,
+        scales=None,
+        calibrate_sizes: bool = True,
+        size_iterations: int = 4,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
@@ -321,8 +330,18 @@ class Tracker:
         self.max_step = max_step
         self.poor_fit = float(poor_fit)
         self.max_prediction = np.radians(float(max_prediction_deg))
-        self.inner = [robot.inner(b) for b in robot.bodies]
-        self.outer = [robot.outer(b) for b in robot.bodies]
+        self.inner = [np.array(robot.inner(b), dtype=float) for b in robot.bodies]
+        self.outer = [np.array(robot.outer(b), dtype=float) for b in robot.bodies]
+        self.scales = np.ones((len(robot.bodies), 3))
+        if scales is not None:
+            sc = np.asarray(scales, dtype=float)
+            if sc.shape != self.scales.shape or not np.all(sc > 0):
+                raise ValueError(f"scales must be positive, shape {self.scales.shape}; got shape {sc.shape}")
+            self.scales = sc.copy()
+            self.inner = [li * f for li, f in zip(self.inner, sc)]
+            self.outer = [lo * f for lo, f in zip(self.outer, sc)]
+        self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
+        self._calibrated = False
         self.q = np.array(robot.q_rest if q0 is None else q0, dtype=float)
         if self.q.shape != (robot.nq,):
             raise InputDataError(f"initial pose has {self.q.size} values but '{robot.system.name}' needs {robot.nq}")
@@ -386,13 +405,76 @@ class Tracker:
             dq[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
         return float(dq.max()) if len(dq) else 0.0
 
+    def calibrate(self, masks, source: str = "frame", q=None) -> np.ndarray:
+        """Fit every body's semi-axes to ``masks`` with the configuration held at ``q``
+        (default: the current pose, i.e. ``q0`` before the first frame).
+
+        The model's sizes rarely match the subject's.  In one view a body that is too
+        long or too wide is otherwise explained by tilting or turning it (a 10 % length
+        error equals a 26° tilt), so the first frame, whose pose is known, is used to
+        measure them: per body and axis a log-scale is fit by Gauss-Newton to the
+        silhouette cost of the M-step (:func:`kms2pin.ecm.mstep.fit_body_scale`),
+        alternating with the E-step as the edge width anneals.  Axes no camera sees
+        (along the viewing ray) keep the model's size.  Returns the scale factors
+        (n_bodies, 3) relative to the model, also kept in :attr:`scales`.
+        """
+        masks = self._masks(masks, source)
+        q = self.q if q is None else np.asarray(q, dtype=float)
+        base_in = [li / s for li, s in zip(self.inner, self.scales)]
+        base_out = [lo / s for lo, s in zip(self.outer, self.scales)]
+        delta = self.delta_start
+        for _ in range(max(1, self.size_iterations)):
+            poses, views = self.e_step(q, masks, delta)
+            for i, v in enumerate(views):
+                f, _ = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+                self.scales[i] = np.clip(self.scales[i] * f, _SCALE_MIN, _SCALE_MAX)
+                self.inner[i] = base_in[i] * self.scales[i]
+                self.outer[i] = base_out[i] * self.scales[i]
+            delta = max(self.delta_final, 0.5 * delta)
+        self._calibrated = True
+        return self.scales.copy()
+
     def iterate(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float, timings: dict) -> np.ndarray:
         """One ECM iteration (E-step, M-step, static update) from ``q``; returns the new q."""
         robot = self.robot
         n = len(robot.bodies)
-        poses = robot.body_poses(q)
         t0 = time.perf_counter()
-        # E-step: sharp silhouettes, their union per camera, what the others explain.
+        poses, views = self.e_step(q, masks, delta_px)
+        t1 = time.perf_counter()
+        # M-step: every body on its own.
+        fits = fit_bodies(
+            views, poses, self.inner, iterations=self.m_iterations, damping=self.damping, max_step=self.max_step
+        )
+        t2 = time.perf_counter()
+        if self.static == "diagonal":
+            targets, k = np.empty((n, 7)), np.zeros((n, 7))
+            for i, fit in enumerate(fits):
+                quat = pin.Quaternion(fit.pose.rotation)
+                theta = np.array([quat.w, quat.x, quat.y, quat.z])
+                targets[i] = [*fit.pose.translation, *theta]
+                k[i] = _delta_to_stiffness(fit.hessian, theta)
+            kmax = float(k.max())
+            if kmax <= 0:
+                q_new = q
+            else:
+                k = np.maximum(k / kmax, self.stiffness_floor)
+                q_new = static_update(robot, q, targets, k, max_iter=30, tol=1e-10).q
+        else:
+            q_new = self._static_update_full(q, fits)
+        t3 = time.perf_counter()
+        timings["e_step"] += t1 - t0
+        timings["m_step"] += t2 - t1
+        timings["static_update"] += t3 - t2
+        return q_new
+
+    def e_step(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float):
+        """E-step at ``q``: each body's sharp silhouette in every camera, their union,
+        and for every body its :class:`BodyView` per camera (mask, what the other bodies
+        explain, inlier weights).  Returns the body poses and the views."""
+        robot = self.robot
+        n = len(robot.bodies)
+        poses = robot.body_poses(q)
+        # sharp silhouettes, their union per camera, what the others explain
         images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
         views: list[list[BodyView]] = [[] for _ in range(n)]
         widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
@@ -442,32 +524,7 @@ class Tracker:
                     y = mask[img.slices].ravel().astype(float)
                 wt = None if weight is None else weight[img.slices].ravel()
                 views[i].append(self._subsampled(img, y, o, wt))
-        t1 = time.perf_counter()
-        # M-step: every body on its own.
-        fits = fit_bodies(
-            views, poses, self.inner, iterations=self.m_iterations, damping=self.damping, max_step=self.max_step
-        )
-        t2 = time.perf_counter()
-        if self.static == "diagonal":
-            targets, k = np.empty((n, 7)), np.zeros((n, 7))
-            for i, fit in enumerate(fits):
-                quat = pin.Quaternion(fit.pose.rotation)
-                theta = np.array([quat.w, quat.x, quat.y, quat.z])
-                targets[i] = [*fit.pose.translation, *theta]
-                k[i] = _delta_to_stiffness(fit.hessian, theta)
-            kmax = float(k.max())
-            if kmax <= 0:
-                q_new = q
-            else:
-                k = np.maximum(k / kmax, self.stiffness_floor)
-                q_new = static_update(robot, q, targets, k, max_iter=30, tol=1e-10).q
-        else:
-            q_new = self._static_update_full(q, fits)
-        t3 = time.perf_counter()
-        timings["e_step"] += t1 - t0
-        timings["m_step"] += t2 - t1
-        timings["static_update"] += t3 - t2
-        return q_new
+        return poses, views
 
     def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
         """The M-step's view of a full-resolution body image: every ``stride``-th row and
@@ -560,21 +617,12 @@ class Tracker:
             self.cameras = [c for c, e in zip(cams_saved, empty) if not e]
             masks = [m for m, e in zip(masks, empty) if not e]
         try:
+            if self.calibrate_sizes and not self._calibrated:
+                self.calibrate(masks, source)
             q = self.q.copy()
             if self.prediction == "constant_velocity" and self._prev is not None:
                 q = pin.integrate(model, q, self._velocity())
-            converged = False
-            it = 0
-            delta = self.delta_start
-            for it in range(1, self.max_iterations + 1):
-                q_new = self.iterate(q, masks, delta, timings)
-                change = self._change(q, q_new)
-                q = q_new
-                at_final = delta <= self.delta_final * 1.0001
-                delta = max(self.delta_final, 0.5 * delta)
-                if at_final and it >= self.min_iterations and change < self.tol:
-                    converged = True
-                    break
+            q, it, converged = self._ecm(q, masks, timings)
             fit = self._iou(q, masks)
             if fit < self.poor_fit:
                 flags += (f"poor fit ({fit:.2f})",)
@@ -583,6 +631,21 @@ class Tracker:
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         self._advance(q)
         return res
+
+    def _ecm(self, q: np.ndarray, masks, timings: dict) -> tuple[np.ndarray, int, bool]:
+        """ECM iterations from ``q`` until the configuration stops changing (edge width
+        annealed); returns the configuration, the iterations run and whether it converged."""
+        it = 0
+        delta = self.delta_start
+        for it in range(1, self.max_iterations + 1):
+            q_new = self.iterate(q, masks, delta, timings)
+            change = self._change(q, q_new)
+            q = q_new
+            at_final = delta <= self.delta_final * 1.0001
+            delta = max(self.delta_final, 0.5 * delta)
+            if at_final and it >= self.min_iterations and change < self.tol:
+                return q, it, True
+        return q, it, False
 
     def _velocity(self) -> np.ndarray:
         """Last frame's motion (tangent vector), each angle capped at ``max_prediction_deg``
@@ -619,4 +682,6 @@ class Tracker:
             results.append(r)
             if on_frame is not None:
                 on_frame(k, r)
-        return Trajectory(self.robot, np.array([r.q for r in results]).reshape(-1, self.robot.nq), results)
+        return Trajectory(
+            self.robot, np.array([r.q for r in results]).reshape(-1, self.robot.nq), results, scales=self.scales
+        )

@@ -123,7 +123,8 @@ class Reacquisition:
         found = initial_pose_details(self.robot, self.cameras, masks, q_start=self.last_good_q)
         if found.fit <= result.fit:
             return tracker, result, None
-        tracker = Tracker(self.robot, self.cameras, q0=found.q)
+        # the same subject: keep the body sizes measured at the start
+        tracker = Tracker(self.robot, self.cameras, q0=found.q, scales=tracker.scales, calibrate_sizes=False)
         r = tracker.step(masks, source=source)
         result = FrameResult(r.q, r.body_poses, r.iterations, r.fit, r.converged, r.flags + ("reinitialized",),
                              r.timings)
