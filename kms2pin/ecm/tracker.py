@@ -282,7 +282,8 @@ class Tracker:
             tracker's :attr:`scales` for the same subject); default all 1.
         calibrate_sizes: measure the body sizes on the first frame with the pose held at
             ``q0`` (:meth:`calibrate`); turn off when the first frame does not show the
-            subject at ``q0``.  On the benchmark it halves the two-camera errors.
+            subject at ``q0``.  On the benchmark it cut the multi-camera body-centre errors
+            by 29-63 %.
         size_iterations: E-step / size-fit rounds of the calibration.
     """
 
