@@ -213,6 +213,14 @@ def body_images(
     return out
 
 
+def _closest(d: np.ndarray, A: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest approach ``q* = e + s* d`` of each ray ``d`` (N, 3) to an ellipsoid of
+    metric ``A`` seen from ``e`` (camera centre relative to the body centre), and ``A q*``."""
+    Ae, Ad = A @ e, d @ A
+    s = np.maximum(-(d @ Ae) / np.einsum("ij,ij->i", Ad, d), 0.0)
+    return e + s[:, None] * d, Ae + s[:, None] * Ad
+
+
 def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, jac: bool):
     """``a²`` per pixel and, if ``jac``, its derivative -2 [g, q*×g] (N, 6) (module docstring)."""
     A = (R / inner**2) @ R.T
@@ -221,18 +229,11 @@ def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, j
         a2 = np.empty(len(img.dirs))
         _kernels.ellipsoid_a2(img.dirs, A, e, a2)
         return a2, None
-    Ae = A @ e
-    d = img.dirs
-    Ad = d @ A
-    dot = d @ Ae
-    nn = np.einsum("ij,ij->i", Ad, d)
-    s = np.maximum(-dot / nn, 0.0)
-    qs = e + s[:, None] * d
-    g = Ae + s[:, None] * Ad
+    qs, g = _closest(img.dirs, A, e)
     a2 = np.einsum("ij,ij->i", qs, g)
     if not jac:
         return a2, None
-    D = np.empty((len(d), 6))
+    D = np.empty((len(qs), 6))
     D[:, :3] = g
     D[:, 3:] = np.cross(qs, g)
     D *= -2.0
@@ -287,23 +288,33 @@ def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: 
         return cost, grad, H, evidence
     for v in views:
         a2, D = _geometry(v.image, R, t, inner, jac)
-        inv = 1.0 / (2.0 * v.image.delta)
-        h = (1.0 - a2) * inv
-        s = sigmoid(h)
-        free = 1.0 - v.o
-        r = v.y - v.o - free * s
-        wt = 1.0 if v.weight is None else v.weight  # inlier responsibility
-        cost += float((wt * r) @ r)
-        if jac:
-            evidence += float((wt * free) @ (s * v.y))
-            # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
-            w = free * s * (1.0 - s) * inv
-            act = (np.abs(h) < H_CUT) & (w > 0)  # off the saturated edge: no gradient
-            J = D[act] * w[act, None]  # = d r / d delta
-            Jw = J if v.weight is None else J * v.weight[act, None]
-            H += Jw.T @ J
-            grad += Jw.T @ r[act]
+        c, e = _view_terms(v, a2, D, H, grad)
+        cost += c
+        evidence += e
     return cost, grad, H, evidence
+
+
+def _view_terms(v: BodyView, a2: np.ndarray, D: np.ndarray | None, H: np.ndarray, grad: np.ndarray):
+    """One view's cost Σ wt r² and evidence; with ``D = d(a²)/dp`` (N, k) it also adds
+    its Gauss-Newton matrix and gradient in ``p`` to ``H`` and ``grad``."""
+    inv = 1.0 / (2.0 * v.image.delta)
+    h = (1.0 - a2) * inv
+    s = sigmoid(h)
+    free = 1.0 - v.o
+    r = v.y - v.o - free * s
+    wt = 1.0 if v.weight is None else v.weight  # inlier responsibility
+    cost = float((wt * r) @ r)
+    if D is None:
+        return cost, 0.0
+    evidence = float((wt * free) @ (s * v.y))
+    # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
+    w = free * s * (1.0 - s) * inv
+    act = (np.abs(h) < H_CUT) & (w > 0)  # off the saturated edge: no gradient
+    J = D[act] * w[act, None]  # = d r / d p
+    Jw = J if v.weight is None else J * v.weight[act, None]
+    H += Jw.T @ J
+    grad += Jw.T @ r[act]
+    return cost, evidence
 
 
 def fit_body(
@@ -396,27 +407,10 @@ def _scale_evaluate(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inn
     cost, grad, H = 0.0, np.zeros(3), np.zeros((3, 3))
     A = (R / inner**2) @ R.T
     for v in views:
-        d = v.image.dirs
-        e = v.image.camera.centre - t
-        Ae, Ad = A @ e, d @ A
-        s_ray = np.maximum(-(d @ Ae) / np.einsum("ij,ij->i", Ad, d), 0.0)
-        qs = e + s_ray[:, None] * d  # closest point of each ray, relative to the centre
-        xb = (qs @ R) / inner  # in the body frame, in semi-axes
-        a2 = np.einsum("ij,ij->i", xb, xb)
-        inv = 1.0 / (2.0 * v.image.delta)
-        h = (1.0 - a2) * inv
-        sig = sigmoid(h)
-        free = 1.0 - v.o
-        r = v.y - v.o - free * sig
-        wt = 1.0 if v.weight is None else v.weight
-        cost += float((wt * r) @ r)
+        qs, _ = _closest(v.image.dirs, A, v.image.camera.centre - t)
+        xb = (qs @ R) / inner  # closest points in the body frame, in semi-axes
         # a² = Σ_k (r_k·q*)² / L_k², so d(a²)/d log L_k = -2 x_k² (envelope theorem in s*)
-        w = free * sig * (1.0 - sig) * inv
-        act = (np.abs(h) < H_CUT) & (w > 0)
-        J = (-2.0 * xb[act] ** 2) * w[act, None]  # dr/d log L = free s(1-s) inv d(a²)/d log L
-        Jw = J if v.weight is None else J * v.weight[act, None]
-        H += Jw.T @ J
-        grad += Jw.T @ r[act]
+        cost += _view_terms(v, np.einsum("ij,ij->i", xb, xb), -2.0 * xb**2, H, grad)[0]
     return cost, grad, H
 
 
