@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import os
 import time
 from pathlib import Path
@@ -61,6 +62,11 @@ CASES = {
     "fullbody-4cam": ("fullbody", "walk", 4),
     "jplhand-2cam": ("jplhand", "random", 2),
     "jplhand-1cam": ("jplhand", "random", 1),
+    # the same models with anatomical joint limits (specs/anatomical)
+    "lowerbody-limits-1cam": ("anatomical/lowerbody", "walk", 1),
+    "lowerbody-limits-2cam": ("anatomical/lowerbody", "walk", 2),
+    "fullbody-limits-1cam": ("anatomical/fullbody", "walk", 1),
+    "fullbody-limits-2cam": ("anatomical/fullbody", "walk", 2),
 }
 
 
@@ -96,9 +102,17 @@ def main():
     p.add_argument("--size-mismatch", type=float, default=0.10)
     p.add_argument("--only", help="comma-separated cases: " + ", ".join(CASES))
     p.add_argument("--level", action="store_true", help="the old rig: side camera level with the front one")
+    p.add_argument(
+        "--option", action="append", default=[], metavar="NAME=VALUE",
+        help="a Tracker option for every case, e.g. mirror_hypothesis=False (repeatable)",
+    )
     a = p.parse_args()
+    options = {}
+    for item in a.option:
+        key, _, value = item.partition("=")
+        options[key.strip()] = ast.literal_eval(value.strip())
     for name in a.only.split(",") if a.only else CASES:
-        run_case(name, a.frames, a.noise, a.size_mismatch, a.level)
+        run_case(name, a.frames, a.noise, a.size_mismatch, a.level, **options)
 
 
 if __name__ == "__main__":

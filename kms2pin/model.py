@@ -68,6 +68,8 @@ class Joint:
     ``parent`` is None for a joint to the inertial frame; then ``parent_bvec`` is
     an inertial bvec.  ``default_angle`` (degrees) is a right-handed rotation of
     the child about the parent end's axis (eq. 2.16); it is 0 for fixed joints.
+    ``limits`` (degrees) bound a revolute joint's angle when the spec gives them
+    (``revolute(a, b, angle, lower, upper)``, a kms2pin extension); None: no limits.
     """
 
     name: str
@@ -78,6 +80,7 @@ class Joint:
     child_bvec: BoundVector
     default_angle: float = 0.0
     loc: Loc = Loc()
+    limits: tuple[float, float] | None = None
 
     @property
     def parent_link(self) -> str:

@@ -39,6 +39,9 @@ class Robot:
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
         q_rest: the spec's rest configuration (default joint angles).
+        lower_limits, upper_limits: (nq,) bounds of ``q`` from the spec's joint limits
+            (radians); -inf / +inf where the spec gives none (the free flyer, and every
+            joint of the thesis's own models).
     """
 
     def __init__(self, spec: ModelSpec, system: System, root: str = "spec"):
@@ -69,6 +72,23 @@ class Robot:
         self.joint_names = tuple(self.model.names[1:])
         pin.loadReferenceConfigurationsFromXML(self.model, self.srdf, False)
         self.q_rest = self._rest_configuration()
+        self.lower_limits = np.full(self.model.nq, -np.inf)
+        self.upper_limits = np.full(self.model.nq, np.inf)
+        by_name = {j.name: j for j in system.joints}
+        for jid in range(1, self.model.njoints):
+            j = by_name.get(self.model.names[jid])
+            if j is not None and j.limits is not None and self.model.joints[jid].nq == 1:
+                idx = self.model.joints[jid].idx_q
+                self.lower_limits[idx], self.upper_limits[idx] = np.radians(j.limits)
+
+    @property
+    def has_limits(self) -> bool:
+        """Whether any joint has limits from the spec."""
+        return bool(np.isfinite(self.lower_limits).any())
+
+    def clamp(self, q: np.ndarray) -> np.ndarray:
+        """``q`` with every limited joint angle clipped into the spec's limits."""
+        return np.clip(q, self.lower_limits, self.upper_limits)
 
     def _add_centre_frame(self, body: str) -> int:
         link = self.model.getFrameId(body, pin.FrameType.BODY)

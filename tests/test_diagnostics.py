@@ -215,7 +215,7 @@ def test_wrong_argument_count_of_statements_and_maths_functions():
     text = edit("leftThigh.knee, 20);", "leftThigh.knee, 20, 30);")
     only(
         text,
-        "constraint revolute(a, b[, defaultAngle]) takes 2 or 3 arguments, not 4",
+        "constraint revolute(a, b[, defaultAngle[, lower, upper]]) takes 2, 3 or 5 arguments, not 4",
         "constraint revolute(leftShin",
     )
 

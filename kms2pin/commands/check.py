@@ -40,6 +40,7 @@ def describe(spec: ModelSpec) -> dict:
                     "axis": list(j.parent_bvec.orient),
                     "axis_frame": j.parent or "world",
                     "default_angle_deg": j.default_angle,
+                    "limits_deg": list(j.limits) if j.limits is not None else None,
                     "line": j.loc.line,
                 },
             })
@@ -61,6 +62,8 @@ def _tree(system: System) -> list[str]:
         for k, j in enumerate(kids):
             last = k == len(kids) - 1
             angle = f", rest {j.default_angle:g} deg" if j.kind == "revolute" else ""
+            if j.limits is not None:
+                angle += f", limits {j.limits[0]:g}..{j.limits[1]:g} deg"
             axis = f"axis {_vec(j.parent_bvec.orient)} in {j.parent or 'world'}"
             lines.append(f"{prefix}{'└─ ' if last else '├─ '}{j.child}  [{j.kind} '{j.name}', {axis}{angle}]")
             walk(j.child, prefix + ("   " if last else "│  "))

@@ -8,6 +8,8 @@ tracker's default start) and is smooth at 30 frames/s.
   other joints sway gently); with ``root="free"`` the body also walks across the
   view along world x, turning round at the ends.
 - ``random``: every joint a sum of random low-frequency sinusoids (+-30 deg).
+
+Joint angles stay within the spec's joint limits, where it gives them (clipped).
 """
 
 from __future__ import annotations
@@ -137,9 +139,9 @@ def make_motion(
     if frames < 1:
         raise Kms2pinError(f"a motion needs at least one frame, not {frames}")
     if name == "sweep":
-        return sweep(robot, frames)
+        return robot.clamp(sweep(robot, frames))
     if name == "walk":
-        return walk(robot, frames)
+        return robot.clamp(walk(robot, frames))
     if name == "random":
-        return random_smooth(robot, frames, rng if rng is not None else np.random.default_rng(0))
+        return robot.clamp(random_smooth(robot, frames, rng if rng is not None else np.random.default_rng(0)))
     raise Kms2pinError(f"unknown motion '{name}'; choose one of {', '.join(MOTIONS)}")

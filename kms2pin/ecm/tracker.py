@@ -237,6 +237,28 @@ def _log_quat(qr: np.ndarray) -> np.ndarray:
     return v * scale[:, None]
 
 
+def _sagittal_mirror(robot: Robot) -> np.ndarray | None:
+    """Reflection (3x3, root frame) through the model's left/right plane: its normal is
+    the mean offset of the ``left*`` bodies' centres from their ``right*`` twins at rest.
+    None if the model has no such pairs."""
+    names = {b.lower(): i for i, b in enumerate(robot.bodies)}
+    poses = robot.body_poses(robot.q_rest)
+    root = pin.XYZQUATToSE3(robot.q_rest[:7]) if robot.root == "free" else pin.SE3.Identity()
+    offsets = [
+        poses[i].translation - poses[names[n.replace("left", "right", 1)]].translation
+        for n, i in names.items()
+        if n.startswith("left") and n.replace("left", "right", 1) in names
+    ]
+    if not offsets:
+        return None
+    lateral = root.rotation.T @ np.mean(offsets, axis=0)
+    norm = float(np.linalg.norm(lateral))
+    if norm < 1e-9:
+        return None
+    lateral /= norm
+    return np.eye(3) - 2.0 * np.outer(lateral, lateral)
+
+
 class Tracker:
     """ECM tracker for one robot seen by one or more cameras.
 
@@ -285,6 +307,18 @@ class Tracker:
             subject at ``q0``.  On the benchmark it cut the multi-camera body-centre errors
             by 29-63 %.
         size_iterations: E-step / size-fit rounds of the calibration.
+        mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
+            when there is one camera, the root is free and the model has left/right
+            bodies).  In one view a body turned by +a from side-on looks like one turned
+            by -a with its legs swapped (a reflection through the plane across the ray);
+            which way a turn goes shows only as it proceeds.  A second hypothesis, the
+            root's orientation reflected so (R -> M_ray R M_sagittal, joints kept), is
+            tracked alongside; the one with the better running fit (IoU, smoothed with
+            ``mirror_smoothing``) is reported, switching when it leads by more than
+            ``mirror_margin`` (flag ``"switched to the mirror hypothesis"``).  Costs a
+            second ECM per frame.  With the joint limits of ``specs/anatomical`` it took
+            the one-camera lower-body benchmark from lost (14 %) to 2.5 %.
+        mirror_smoothing, mirror_margin: see ``mirror_hypothesis``.
     """
 
     def __init__(
@@ -314,6 +348,9 @@ class Tracker:
         scales=None,
         calibrate_sizes: bool = True,
         size_iterations: int = 4,
+        mirror_hypothesis: bool | None = None,
+        mirror_smoothing: float = 0.2,
+        mirror_margin: float = 0.0,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
@@ -355,6 +392,15 @@ class Tracker:
         self._prev: np.ndarray | None = None
         self.frame = 0
         self._root_dofs = 3 if robot.root == "free" else 0
+        self._sagittal = _sagittal_mirror(robot) if robot.root == "free" else None
+        if mirror_hypothesis is None:
+            mirror_hypothesis = len(self.cameras) == 1 and self._sagittal is not None
+        if mirror_hypothesis and self._sagittal is None:
+            raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
+        self.mirror_hypothesis = bool(mirror_hypothesis)
+        self.mirror_smoothing, self.mirror_margin = float(mirror_smoothing), float(mirror_margin)
+        self._alt: tuple[np.ndarray, np.ndarray] | None = None  # mirror hypothesis (q, previous q)
+        self._score = self._alt_score = 0.0
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -465,7 +511,7 @@ class Tracker:
                 q_new = q
             else:
                 k = np.maximum(k / kmax, self.stiffness_floor)
-                q_new = static_update(robot, q, targets, k, max_iter=30, tol=1e-10).q
+                q_new = robot.clamp(static_update(robot, q, targets, k, max_iter=30, tol=1e-10).q)
         else:
             q_new = self._static_update_full(q, fits)
         t3 = time.perf_counter()
@@ -574,6 +620,7 @@ class Tracker:
         st = _structure(robot)
         native = _mstep.NATIVE
         K36 = K.reshape(n, 36)
+        limited = robot.has_limits
         for _ in range(self.static_iterations):
             pin.computeJointJacobians(model, data, q)
             X = body_frames(model, data, robot.frame_ids, st, native)
@@ -598,6 +645,8 @@ class Tracker:
             A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
             dq = -np.linalg.solve(A, g)
             q = pin.integrate(model, q, dq)
+            if limited:  # projected Gauss-Newton: the spec's joint limits
+                q = robot.clamp(q)
             if np.abs(dq).max() < 1e-7:
                 break
         return q
@@ -617,6 +666,7 @@ class Tracker:
         if all(empty):
             res = FrameResult(self.q.copy(), robot.maximal_coordinates(self.q), 0, 0.0, False, ("empty mask",), timings)
             self._advance(self.q, keep_velocity=False)
+            self._alt = None
             return res
         flags = tuple(f"empty mask in camera {c}" for c, e in enumerate(empty) if e)
         cams_saved = self.cameras
@@ -628,9 +678,13 @@ class Tracker:
                 self.calibrate(masks, source)
             q = self.q.copy()
             if self.prediction == "constant_velocity" and self._prev is not None:
-                q = pin.integrate(model, q, self._velocity())
+                q = robot.clamp(pin.integrate(model, q, self._velocity()))
             q, it, converged = self._ecm(q, masks, timings)
             fit = self._iou(q, masks)
+            if self.mirror_hypothesis:
+                q, fit, switched = self._mirror_step(q, fit, masks, timings)
+                if switched:
+                    flags += ("switched to the mirror hypothesis",)
             if fit < self.poor_fit:
                 flags += (f"poor fit ({fit:.2f})",)
         finally:
@@ -654,12 +708,69 @@ class Tracker:
                 return q, it, True
         return q, it, False
 
-    def _velocity(self) -> np.ndarray:
+    def _mirror(self, q: np.ndarray) -> np.ndarray:
+        """The mirror-image configuration of ``q`` in the (first) camera: the root's
+        orientation reflected through the plane across the viewing ray at the root and
+        through the model's own left/right plane (a proper rotation), joints kept."""
+        M = pin.XYZQUATToSE3(q[:7])
+        d = M.translation - self.cameras[0].centre
+        d /= max(float(np.linalg.norm(d)), 1e-12)
+        R = (np.eye(3) - 2.0 * np.outer(d, d)) @ M.rotation @ self._sagittal
+        out = q.copy()
+        out[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, M.translation))
+        return out
+
+    def _root_angle(self, a: np.ndarray, b: np.ndarray) -> float:
+        Ra, Rb = pin.XYZQUATToSE3(a[:7]).rotation, pin.XYZQUATToSE3(b[:7]).rotation
+        return float(np.linalg.norm(pin.log3(Ra.T @ Rb)))
+
+    def _mirror_step(self, q: np.ndarray, fit: float, masks, timings: dict) -> tuple[np.ndarray, float, bool]:
+        """Track the mirror hypothesis alongside the main one (``q``, its ``fit`` this
+        frame); return the pose to report, its fit and whether it switched."""
+        a = self.mirror_smoothing
+        self._score = fit if self.frame == 0 else (1.0 - a) * self._score + a * fit
+        switched = False
+        if self._alt is None:
+            if self.frame == 0:
+                return q, fit, False
+            # spawn: the mirror image of this frame's fit and of the last frame's
+            self._alt = (self._mirror(q), self._mirror(self.q))
+            self._alt_score = self._score
+        else:
+            qa, pa = self._alt
+            pred = qa
+            if self.prediction == "constant_velocity":
+                pred = self.robot.clamp(pin.integrate(self.robot.model, qa, self._velocity(pa, qa)))
+            qa_new, _, _ = self._ecm(pred, masks, timings)
+            fa = self._iou(qa_new, masks)
+            self._alt_score = (1.0 - a) * self._alt_score + a * fa
+            self._alt = (qa_new, qa)
+            if self._alt_score > self._score + self.mirror_margin:
+                # the mirror leads: it becomes the main hypothesis (its last pose too, for the velocity)
+                self._alt = (q, self.q.copy())
+                self.q = qa.copy()
+                q, fit = qa_new, fa
+                self._score, self._alt_score = self._alt_score, self._score
+                switched = True
+        qa = self._alt[0]
+        # a hypothesis that is (or merged into) the main one, strayed far from its mirror
+        # image or fell well behind is dropped; the next frame spawns a fresh one
+        if (
+            self._root_angle(qa, q) < np.radians(10.0)
+            or self._root_angle(qa, self._mirror(q)) > np.radians(60.0)
+            or self._alt_score < self._score - 0.05
+        ):
+            self._alt = None
+        return q, fit, switched
+
+    def _velocity(self, prev: np.ndarray | None = None, cur: np.ndarray | None = None) -> np.ndarray:
         """Last frame's motion (tangent vector), each angle capped at ``max_prediction_deg``
         and the root's translation at that many hundredths of the model height (as in
         ``tol_deg``): a joint the images hardly fix can start to spin, and an uncapped
         prediction would carry the spin on from frame to frame."""
-        v = pin.difference(self.robot.model, self._prev, self.q)
+        prev = self._prev if prev is None else prev
+        cur = self.q if cur is None else cur
+        v = pin.difference(self.robot.model, prev, cur)
         cap = np.full(len(v), self.max_prediction)
         if self._root_dofs:
             cap[:3] = np.degrees(self.max_prediction) * 0.01 * self.robot.height

@@ -138,6 +138,7 @@ class _JointB:
     angle: float
     loc: Loc
     end_locs: tuple[Loc, Loc]
+    limits: tuple[float, float] | None = None
 
 
 @dataclass
@@ -493,24 +494,53 @@ class Analyzer:
                 f"unknown joint type '{s.kind}'{did_you_mean(s.kind, JOINT_KINDS)}; "
                 "the language has fixed and revolute joints",
             )
-        nmax = 3 if s.kind == "revolute" else 2
-        if not 2 <= len(s.args) <= nmax:
-            usage = "(a, b[, defaultAngle])" if s.kind == "revolute" else "(a, b)"
-            raise _Fail(s.loc, f"constraint {s.kind}{usage} takes {'2 or 3' if nmax == 3 else '2'} arguments, not {len(s.args)}")
+        nargs = (2, 3, 5) if s.kind == "revolute" else (2,)
+        if len(s.args) not in nargs:
+            if s.kind == "revolute":
+                raise _Fail(
+                    s.loc,
+                    "constraint revolute(a, b[, defaultAngle[, lower, upper]]) takes 2, 3 or 5 "
+                    f"arguments, not {len(s.args)}",
+                )
+            raise _Fail(s.loc, f"constraint fixed(a, b) takes 2 arguments, not {len(s.args)}")
         ends = []
         for a in s.args[:2]:
             ends.append(self.resolve_bvec(a, scope, ctx))
-        angle = 0.0
-        if len(s.args) == 3:
-            t, v = self.eval(s.args[2], scope)
+        values = []
+        for node, what in zip(s.args[2:], ("a joint angle", "a lower joint limit", "an upper joint limit")):
+            t, v = self.eval(node, scope)
             if v is POISON:
                 return
             if t != "double":
-                raise _Fail(s.args[2].loc, f"a joint angle must be a double (degrees), not {t}")
-            angle = float(v)
+                raise _Fail(node.loc, f"{what} must be a double (degrees), not {t}")
+            values.append(float(v))
+        angle = values[0] if values else 0.0
+        limits = None
+        if len(values) == 3:
+            lower, upper = values[1], values[2]
+            if not lower < upper:
+                raise _Fail(
+                    s.args[3].loc,
+                    f"the lower joint limit ({lower:g} deg) must be below the upper one ({upper:g} deg); "
+                    "a joint that cannot move is constraint fixed(a, b)",
+                )
+            if upper - lower > 360.0:
+                raise _Fail(
+                    s.args[3].loc,
+                    f"joint limits {lower:g}..{upper:g} deg span more than a full turn; "
+                    "leave them out for a joint without limits",
+                )
+            if not lower <= angle <= upper:
+                raise _Fail(
+                    s.args[2].loc,
+                    f"the default angle {angle:g} deg is outside the joint limits {lower:g}..{upper:g} deg",
+                )
+            limits = (lower, upper)
         if any(e is None for e in ends):
             return
-        self.joints.append(_JointB(s.kind, (ends[0], ends[1]), angle, s.loc, (s.args[0].loc, s.args[1].loc)))
+        self.joints.append(
+            _JointB(s.kind, (ends[0], ends[1]), angle, s.loc, (s.args[0].loc, s.args[1].loc), limits)
+        )
 
     def resolve_bvec(self, node: A.Node, scope: _Scope, ctx: _Ctx) -> _BvecB | None:
         if not isinstance(node, A.Name):
@@ -886,6 +916,7 @@ class Analyzer:
                     bvecs[child_end.name],
                     j.angle,
                     j.loc,
+                    j.limits,
                 )
             )
         return System(sb.name, tuple(bodies), tuple(out_joints), sb.loc)
