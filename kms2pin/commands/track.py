@@ -66,6 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-size-calibration", action="store_true",
                    help="keep the spec's body sizes (default: measure them on the first frame, whose "
                         "pose is taken to be the rest pose or --init POSE; not with --init auto)")
+    p.add_argument("--no-mirror-hypothesis", action="store_true",
+                   help="with one camera, track only one hypothesis (default: also the mirror image "
+                        "of the pose, which tells which way a turn goes; twice the work)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
@@ -247,13 +250,17 @@ def run(args: argparse.Namespace) -> int:
         q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
     # body sizes are measured on the first frame only where its pose is known (the rest pose
     # or --init POSE): at a pose found by the search they would absorb its errors
-    tracker = Tracker(robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto))
+    tracker = Tracker(
+        robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
+        mirror_hypothesis=False if args.no_mirror_hypothesis else None,
+    )
     try:
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(args.spec, out / "model.kms")
         meta = {
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
+            "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]

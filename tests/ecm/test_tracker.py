@@ -230,6 +230,30 @@ def test_a_frame_the_model_cannot_fit_is_flagged_poor_fit():
     assert any(f.startswith("poor fit") for f in r.flags)
 
 
+def test_a_lost_track_keeps_its_last_pose_and_does_not_coast():
+    """Masks that the model's silhouettes do not touch at all (fit 0) carry no
+    information: the tracker keeps the last pose instead of following its constant-
+    velocity prediction out of the view, and picks the subject up when it is back."""
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    motion = np.repeat(robot.q_rest[None], 4, axis=0)
+    for k in range(4):
+        motion[k, 0] += 0.01 * k * robot.height  # walking sideways, 1 % of the height a frame
+    tr = Tracker(robot, cams, q0=motion[0], calibrate_sizes=False)
+    for k in range(3):
+        tr.step(render(robot, motion[k], cams))
+    last = tr.q.copy()
+    blob = [np.zeros(c.shape, dtype=bool) for c in cams]
+    for b in blob:
+        b[:6, :6] = True  # a speck in a corner, far from the model
+    r = tr.step(blob)
+    assert r.fit == 0.0 and "lost: kept the last pose" in r.flags
+    np.testing.assert_array_equal(r.q, last)
+    r = tr.step(render(robot, motion[3], cams))  # back: no velocity carried over the lost frame
+    assert r.fit > 0.9
+    assert centre_error(robot, r.q, motion[3]) < 0.5
+
+
 def test_constant_velocity_prediction_is_capped():
     """A joint that turned 90 deg in the last frame (a poorly seen joint starting to spin)
     is predicted to move at most max_prediction_deg; slow joints keep their velocity."""
