@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import Kms2pinError
 from ..robot import Robot
 from .errors import PoseError, ViewerError
-from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints, wrap_deg
+from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints
 from .robot_view import RobotView
 
 MAX_BODY = 64 * 1024
@@ -124,7 +124,8 @@ class JointControl:
             self.updates += 1
 
     def set_joint(self, name: str, deg: float) -> np.ndarray:
-        """Set one revolute joint (degrees, wrapped into [-180, 180]) and redraw."""
+        """Set one revolute joint (degrees; wrapped into [-180, 180] unless the joint has
+        limits, which it must then respect) and redraw."""
         try:
             deg = float(deg)
         except (TypeError, ValueError):
@@ -132,7 +133,7 @@ class JointControl:
         if not math.isfinite(deg):
             raise PoseError(f"angle of joint '{name}' must be finite, not {deg!r}")
         with self._lock:
-            q = parse_pose(self.robot, f"{name}={wrap_deg(deg)!r}", self.view.q)
+            q = parse_pose(self.robot, f"{name}={deg!r}", self.view.q)
             self._apply(q)
             return q.copy()
 

@@ -74,9 +74,10 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q=None) -> np.nda
     """Apply ``name=deg`` assignments to ``q`` (default: the rest pose); returns a new q.
 
     ``pose`` is one string (``"a=10 b=-20"``, also comma separated) or several.
-    Angles are degrees, wrapped into [-180, 180].  Unknown names (with a "did you
-    mean"), fixed joints, a joint given twice, and values that are not finite
-    numbers raise :class:`PoseError`.
+    Angles are degrees, wrapped into [-180, 180] unless the joint has limits in the
+    spec.  Unknown names (with a "did you mean"), fixed joints, a joint given twice,
+    values that are not finite numbers and angles outside a joint's limits raise
+    :class:`PoseError`.
     """
     q = np.array(robot.q_rest if q is None else q, dtype=float)
     if q.shape != (robot.nq,):
@@ -111,5 +112,13 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q=None) -> np.nda
             raise PoseError(f"angle of joint '{name}' is not a number: '{value}'") from None
         if not math.isfinite(deg):
             raise PoseError(f"angle of joint '{name}' must be finite, not '{value}'")
-        q[joints[name].idx_q] = math.radians(wrap_deg(deg))
+        idx = joints[name].idx_q
+        if math.isfinite(robot.lower_limits[idx]):  # the spec's limits: no wrapping, checked
+            lo, hi = math.degrees(robot.lower_limits[idx]), math.degrees(robot.upper_limits[idx])
+            if not lo - 1e-9 <= deg <= hi + 1e-9:
+                raise PoseError(f"angle of joint '{name}' ({_format(deg)} deg) is outside its limits "
+                                f"{_format(lo)}..{_format(hi)} deg")
+            q[idx] = math.radians(min(max(deg, lo), hi))
+        else:
+            q[idx] = math.radians(wrap_deg(deg))
     return q

@@ -64,3 +64,23 @@ def test_free_root_skips_the_free_flyer():
         parse_pose(robot, "root_joint=10")
     q = parse_pose(robot, pose_string(robot, robot.q_rest))
     np.testing.assert_allclose(q, robot.q_rest, atol=1e-9)
+
+
+def test_sliders_and_poses_follow_the_spec_limits():
+    from pathlib import Path
+
+    from kms2pin.robot import load as load_spec
+
+    robot = load_spec(Path(__file__).resolve().parents[2] / "specs" / "anatomical" / "lowerbody.kms")
+    ranges = {j.name: (j.lower_deg, j.upper_deg) for j in revolute_joints(robot)}
+    assert ranges["leftShin_knee"] == (0.0, 150.0)
+    assert ranges["leftThigh_hip"] == (-30.0, 120.0)
+    assert ranges["pelvis_inertialAnchor"] == (-180.0, 180.0)  # no limits in the spec
+    q = parse_pose(robot, "leftShin_knee=140")  # within the limits, kept as given
+    assert math.degrees(q[joint_q(robot, "leftShin_knee")]) == pytest.approx(140)
+    with pytest.raises(PoseError, match=r"'leftShin_knee' \(-30 deg\) is outside its limits 0..150 deg"):
+        parse_pose(robot, "leftShin_knee=-30")
+    with pytest.raises(PoseError, match="outside its limits -30..120 deg"):
+        parse_pose(robot, "leftThigh_hip=270")  # not wrapped to -90 either
+    q = parse_pose(robot, "pelvis_inertialAnchor=270")  # unlimited joints still wrap
+    assert math.degrees(q[joint_q(robot, "pelvis_inertialAnchor")]) == pytest.approx(-90)
