@@ -44,9 +44,11 @@ class StaticUpdateResult:
 
     Attributes:
         q: equilibrium configuration (Pinocchio ``q``).
-        converged: whether ||B^T Q|| fell below ``tol``.
+        converged: whether ||B^T Q|| fell below ``tol`` (with joint limits: its part
+            along the joints that are free to move).
         iterations: Levenberg-Marquardt iterations taken.
-        residual: ||B^T Q|| at ``q`` (eq. 2.28; generalized force, spring units).
+        residual: ||B^T Q|| at ``q`` (eq. 2.28; generalized force, spring units), less
+            the components held by active joint limits.
         energy: spring energy 1/2 sum k (q' - q)^2 at ``q``.
         forces: (n_bodies, 7) spring forces F_i (eq. 2.33) at ``q``, body order.
         message: why the iteration stopped.
@@ -342,6 +344,12 @@ def static_update(
 
     Returns:
         A :class:`StaticUpdateResult`; a non-converged update is returned, not raised.
+
+    Joint limits from the spec (``revolute(a, b, angle, lower, upper)``, not in the
+    thesis) are kept: the start is clipped into them, every step is projected onto
+    them, and a joint held at a limit by a force pushing it outwards drops out of the
+    Newton system (projected Levenberg-Marquardt); the equilibrium is then B^T Q = 0
+    along the free joints only (a KKT point of the spring energy within the limits).
     """
     q = np.array(q, dtype=float)
     if q.shape != (robot.model.nq,):
@@ -357,8 +365,13 @@ def static_update(
     nv = robot.model.nv
     eye = np.eye(nv)
     step = np.empty(nv)
+    bounds = _limited_joints(robot)
+    if bounds is not None:
+        q = robot.clamp(q)
 
     energy, grad, H, X, diff, gsq, hmax = ev.linearize_full(q)
+    if bounds is not None:
+        grad, H, gsq = _hold_active(bounds, q, grad, H)
     lam = 1e-8
     it = 0
     converged = False
@@ -389,6 +402,8 @@ def static_update(
                 lam = max(lam * 10.0, 1e-8)
                 continue
             q_new = pin.integrate(robot.model, q, step)
+            if bounds is not None:
+                q_new = robot.clamp(q_new)
             lin = ev.linearize_full(q_new)
             if lin[0] <= energy + 1e-15 * max(1.0, energy):
                 accepted = True
@@ -400,10 +415,50 @@ def static_update(
             break
         q = q_new
         energy, grad, H, X, diff, gsq, hmax = lin
-    # a revolute angle and itself plus a full turn are one pose: report the one nearest the input
+        if bounds is not None:
+            grad, H, gsq = _hold_active(bounds, q, grad, H)
+    # a revolute angle and itself plus a full turn are one pose: report the one nearest the
+    # input (a joint with limits stays where they put it)
     rev = ev.s.revolute_q
+    if bounds is not None:
+        rev = rev[~np.isin(rev, bounds[0])]
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
     return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
+
+
+def _limited_joints(robot: Robot):
+    """(q indices, v indices) of the joints with limits from the spec, or None."""
+    if not robot.has_limits:
+        return None
+    model = robot.model
+    iq, iv = [], []
+    for jid in range(1, model.njoints):
+        j = model.joints[jid]
+        if j.nq == 1 and np.isfinite(robot.lower_limits[j.idx_q]):
+            iq.append(j.idx_q)
+            iv.append(j.idx_v)
+    return np.array(iq), np.array(iv), robot.lower_limits[iq], robot.upper_limits[iq]
+
+
+def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
+    """Gradient and Newton matrix with the joints that sit at a limit and are pushed
+    outwards (descent -grad leaves the range) taken out: zero gradient, unit row and
+    column.  Returns them and the squared norm of the projected gradient."""
+    iq, iv, lo, hi = bounds
+    g = grad[iv]
+    span = hi - lo
+    active = ((q[iq] <= lo + 1e-12 * span) & (g > 0)) | ((q[iq] >= hi - 1e-12 * span) & (g < 0))
+    if not active.any():
+        return grad, H, float(grad @ grad)
+    a = iv[active]
+    grad = grad.copy()
+    grad[a] = 0.0
+    H = H.copy()
+    d = max(float(H.diagonal().max()), 1e-12)
+    H[a, :] = 0.0
+    H[:, a] = 0.0
+    H[a, a] = d
+    return grad, H, float(grad @ grad)
 
 
 def perturbed_targets(

@@ -152,3 +152,48 @@ def test_the_tracker_keeps_a_joint_within_its_limits():
     thesis = load(SPECS / "lowerbody.kms", root="free")
     r = Tracker(thesis, cams, q0=q0, calibrate_sizes=False, max_iterations=10).step(render(thesis, shown, cams))
     assert r.q[knee] < math.radians(-25.0)
+
+
+def _spring_energy(robot, q, targets) -> float:
+    """1/2 sum (q_max - q')^2 over the bodies' maximal coordinates (eq. 2.33, k = 1),
+    each target's Euler parameters on the primary's side (§2.2.1): from Pinocchio's
+    forward kinematics alone."""
+    X = robot.maximal_coordinates(q)
+    T = targets.copy()
+    flip = np.einsum("ij,ij->i", X[:, 3:], T[:, 3:]) < 0
+    T[flip, 3:] *= -1
+    return 0.5 * float(((X - T) ** 2).sum())
+
+
+def test_static_update_stops_at_a_limit_at_the_bounded_minimum():
+    """Springs pull the knee 30 deg past straight; with the anatomical limits the update
+    ends at the knee's limit (0) and at the same configuration and energy as a bounded
+    quasi-Newton minimisation (SciPy's L-BFGS-B) of the spring energy."""
+    from scipy.optimize import minimize
+
+    from kms2pin.virtual_work import static_update
+
+    robot = load(SPECS / "anatomical" / "lowerbody.kms")
+    m = robot.model
+    knee = m.joints[m.getJointId("leftShin_knee")].idx_q
+    shown = robot.q_rest.copy()
+    shown[knee] = math.radians(-30.0)
+    shown[m.joints[m.getJointId("rightThigh_hip")].idx_q] += math.radians(15.0)
+    targets = robot.maximal_coordinates(shown)
+    targets[:, :3] += np.random.default_rng(4).normal(0, 0.02, (len(targets), 3))  # not exactly reachable
+
+    res = static_update(robot, robot.q_rest, targets)
+    assert res.converged, res.message
+    assert res.q[knee] == pytest.approx(0.0, abs=1e-12)  # held at its lower limit
+    assert np.all(res.q >= robot.lower_limits) and np.all(res.q <= robot.upper_limits)
+
+    bounds = list(zip(robot.lower_limits, robot.upper_limits))
+    bounds = [(None if not np.isfinite(a) else a, None if not np.isfinite(b) else b) for a, b in bounds]
+    ref = minimize(lambda q: _spring_energy(robot, q, targets), robot.q_rest, method="L-BFGS-B", bounds=bounds,
+                   options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 5000})
+    assert res.energy == pytest.approx(_spring_energy(robot, res.q, targets), rel=1e-9)
+    assert res.energy <= ref.fun * (1 + 1e-6)
+    np.testing.assert_allclose(res.q, ref.x, atol=2e-3)
+
+    free = static_update(load(SPECS / "lowerbody.kms"), robot.q_rest, targets)  # the thesis's model
+    assert free.q[knee] < math.radians(-20.0) and free.energy < res.energy
