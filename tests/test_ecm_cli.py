@@ -51,12 +51,12 @@ def test_synth_track_evaluate(tmp_path, cams2, capsys):
 
 
 def test_one_camera_options_reach_the_tracker(tmp_path):
-    """One camera: the mirror hypothesis is on by default; --no-mirror-hypothesis and
-    --no-size-calibration turn the two off (meta.json records what ran), and the
-    body sizes then stay the spec's."""
+    """One camera: the mirror and swap hypotheses are on by default;
+    --no-mirror-hypothesis, --no-swap-hypothesis and --no-size-calibration turn them
+    off (meta.json records what ran), and the body sizes then stay the spec's."""
     d = tmp_path / "m"
     assert main(["synth", LOWER, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
-    runs = {"default": [], "off": ["--no-mirror-hypothesis", "--no-size-calibration"]}
+    runs = {"default": [], "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration"]}
     for name, flags in runs.items():
         out = tmp_path / name
         assert main(["track", LOWER, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
@@ -64,10 +64,10 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]
         if name == "default":
-            assert meta["mirror_hypothesis"] and meta["size_calibration"]
+            assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
-            assert not meta["mirror_hypothesis"] and not meta["size_calibration"]
+            assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
             np.testing.assert_array_equal(scales, 1.0)
 
 

@@ -67,8 +67,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="keep the spec's body sizes (default: measure them on the first frame, whose "
                         "pose is taken to be the rest pose or --init POSE; not with --init auto)")
     p.add_argument("--no-mirror-hypothesis", action="store_true",
-                   help="with one camera, track only one hypothesis (default: also the mirror image "
-                        "of the pose, which tells which way a turn goes; twice the work)")
+                   help="with one camera, do not also track the mirror image of the pose (it tells "
+                        "which way a turn goes; one more ECM a frame)")
+    p.add_argument("--no-swap-hypothesis", action="store_true",
+                   help="with one camera, do not also track the pose with left and right swapped (it "
+                        "tells the legs apart after a side-on view; one more ECM a frame)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
@@ -253,6 +256,7 @@ def run(args: argparse.Namespace) -> int:
     tracker = Tracker(
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
+        swap_hypothesis=False if args.no_swap_hypothesis else None,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -261,6 +265,7 @@ def run(args: argparse.Namespace) -> int:
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
             "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
+            "swap_hypothesis": tracker.swap_hypothesis,
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]

@@ -219,8 +219,9 @@ def initial_pose_details(
     # re-place the best candidates (rotation about the centre moves the silhouette a little)
     best: tuple[float, float, float, np.ndarray] | None = None
     # candidates are approximate poses: the body sizes are not measured at them; the
-    # search itself tries the turns, so no mirror hypothesis either
-    kw = {"prediction": "previous", "calibrate_sizes": False, "mirror_hypothesis": False, **(tracker_kw or {})}
+    # search itself tries the turns, so no alternative hypotheses either
+    kw = {"prediction": "previous", "calibrate_sizes": False, "mirror_hypothesis": False, "swap_hypothesis": False,
+          **(tracker_kw or {})}
     for score, yaw, pitch, qc in cands[: max(1, refine)]:
         qc = place(robot, qc, rcam, _shrink(masks[ref], rcam), passes=2)
         if refine_steps > 0:

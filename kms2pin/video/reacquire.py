@@ -126,7 +126,7 @@ class Reacquisition:
         # the same subject: keep the body sizes measured at the start
         tracker = Tracker(
             self.robot, self.cameras, q0=found.q, scales=tracker.scales, calibrate_sizes=False,
-            mirror_hypothesis=tracker.mirror_hypothesis,
+            mirror_hypothesis=tracker.mirror_hypothesis, swap_hypothesis=tracker.swap_hypothesis,
         )
         r = tracker.step(masks, source=source)
         result = FrameResult(r.q, r.body_poses, r.iterations, r.fit, r.converged, r.flags + ("reinitialized",),

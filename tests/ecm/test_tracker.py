@@ -339,15 +339,52 @@ def _root_angle_deg(a, b) -> float:
     return float(np.degrees(np.linalg.norm(pin.log3(Ra.T @ Rb))))
 
 
-def test_mirror_hypothesis_is_on_for_one_camera_and_a_left_right_model():
+def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model():
     robot = _anatomical()
-    assert Tracker(robot, _cams(robot, 1)).mirror_hypothesis
-    assert not Tracker(robot, _cams(robot, 2)).mirror_hypothesis
-    assert not Tracker(robot, _cams(robot, 1), mirror_hypothesis=False).mirror_hypothesis
+    one = Tracker(robot, _cams(robot, 1))
+    assert one.mirror_hypothesis and one.swap_hypothesis
+    two = Tracker(robot, _cams(robot, 2))
+    assert not two.mirror_hypothesis and not two.swap_hypothesis
+    off = Tracker(robot, _cams(robot, 1), mirror_hypothesis=False, swap_hypothesis=False)
+    assert not off.mirror_hypothesis and not off.swap_hypothesis
     hand = _robot("jplhand")  # no left/right bodies
     assert not Tracker(hand, _cams(hand, 1)).mirror_hypothesis
+    assert not Tracker(hand, _cams(hand, 1)).swap_hypothesis
     with pytest.raises(ValueError, match="left/right"):
         Tracker(hand, _cams(hand, 1), mirror_hypothesis=True)
+    with pytest.raises(ValueError, match="left/right"):
+        Tracker(hand, _cams(hand, 1), swap_hypothesis=True)
+
+
+@pytest.mark.parametrize("name", ["lowerbody", "fullbody"])
+def test_the_swap_hypothesis_is_the_body_reflected_through_its_own_left_right_plane(name):
+    """Exchanging the left and right joints' angles puts every body where the
+    reflection of the body through its sagittal plane puts its twin (leftThigh <->
+    rightThigh, the trunk onto itself), seen from any camera as the same silhouette
+    under a reflection: checked with forward kinematics at random poses."""
+    robot = load(DIR / "anatomical" / f"{name}.kms", root="free")
+    tr = Tracker(robot, _cams(robot, 1))
+    a, b = tr._swap_pairs
+    names = [robot.model.names[j] for j in range(1, robot.model.njoints)]
+    assert {robot.model.names[j] for j in range(1, robot.model.njoints) if robot.model.joints[j].idx_q in a} == {
+        n for n in names if n.startswith("left")
+    }
+    root0 = pin.XYZQUATToSE3(robot.q_rest[:7])
+    hips = [robot.body_pose(robot.q_rest, n).translation for n in ("leftThigh", "rightThigh")]
+    lateral = root0.rotation.T @ (hips[0] - hips[1])
+    lateral /= np.linalg.norm(lateral)
+    reflect = np.eye(3) - 2 * np.outer(lateral, lateral)  # independent of the tracker's own
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q = robot.clamp(robot.random_configuration(rng, 40))
+        s = tr._swap(q)
+        np.testing.assert_array_equal(tr._swap(s), q)
+        root = pin.XYZQUATToSE3(q[:7])
+        for body in robot.bodies:
+            twin = body.replace("left", "RIGHT").replace("right", "left").replace("RIGHT", "right")
+            p = root.actInv(robot.body_pose(q, body)).translation
+            p_twin = root.actInv(robot.body_pose(s, twin)).translation
+            np.testing.assert_allclose(p_twin, reflect @ p, atol=1e-9 * robot.height)
 
 
 def test_the_mirror_image_looks_the_same_from_afar_and_is_an_involution():
