@@ -55,11 +55,12 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     --no-mirror-hypothesis, --no-swap-hypothesis and --no-size-calibration turn them
     off (meta.json records what ran), and the body sizes then stay the spec's."""
     d = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
+    anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
+    assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
     runs = {"default": [], "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration"]}
     for name, flags in runs.items():
         out = tmp_path / name
-        assert main(["track", LOWER, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
+        assert main(["track", anatomical, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
         meta = json.loads((out / "meta.json").read_text())
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]

@@ -70,8 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with one camera, do not also track the mirror image of the pose (it tells "
                         "which way a turn goes; one more ECM a frame)")
     p.add_argument("--no-swap-hypothesis", action="store_true",
-                   help="with one camera, do not also track the pose with left and right swapped (it "
-                        "tells the legs apart after a side-on view; one more ECM a frame)")
+                   help="with one camera and a model with joint limits, do not also track the pose with "
+                        "left and right swapped (it tells the legs apart after a side-on view; one more "
+                        "ECM a frame)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 

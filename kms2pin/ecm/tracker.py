@@ -351,11 +351,13 @@ class Tracker:
             tracked alongside.  With the joint limits of ``specs/anatomical`` it took the
             one-camera lower-body walk benchmark from lost to 2.3 % and 7.7°.
         swap_hypothesis: also track the hypothesis with the left and right joints'
-            angles exchanged (``None``: when there is one camera and the model has
-            left/right joints whose exchange reflects the body through its own
-            left/right plane).  Side-on, one view cannot tell the left leg from the right
-            one; the swap shows when the body turns.  On the benchmark it brought the one
-            noise seed of five whose legs were swapped after a turn from 4.2 % to 1.4 %.
+            angles exchanged (``None``: when there is one camera, the model has joint
+            limits, and it has left/right joints whose exchange reflects the body through
+            its own left/right plane).  Side-on, one view cannot tell the left leg from
+            the right one; the swap shows when the body turns.  On the benchmark it
+            brought the one noise seed of five whose legs were swapped after a turn from
+            4.2 % to 1.4 %; on the thesis's models, without limits, it made the lost
+            one-camera tracks worse (lower body 7.6 -> 9.7 %, full body 28 -> 41 %).
         hypothesis_smoothing, mirror_margin, swap_margin: every hypothesis keeps a
             running fit (IoU, exponentially smoothed with this weight on the new frame);
             the tracker reports the main one and switches to an alternative whose running
@@ -451,7 +453,9 @@ class Tracker:
         self.mirror_hypothesis = bool(mirror_hypothesis)
         self._swap_pairs = _left_right_joints(robot, self._sagittal)
         if swap_hypothesis is None:
-            swap_hypothesis = len(self.cameras) == 1 and self._swap_pairs is not None
+            # without joint limits a swapped leg finds a pose (a knee bent backwards) that
+            # fits as well, and the swaps did more harm than good on the benchmark
+            swap_hypothesis = len(self.cameras) == 1 and self._swap_pairs is not None and robot.has_limits
         if swap_hypothesis and self._swap_pairs is None:
             raise ValueError(
                 "swap_hypothesis needs left/right joints (names left*/right*) whose exchange mirrors the body"

@@ -354,6 +354,10 @@ def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model():
         Tracker(hand, _cams(hand, 1), mirror_hypothesis=True)
     with pytest.raises(ValueError, match="left/right"):
         Tracker(hand, _cams(hand, 1), swap_hypothesis=True)
+    thesis = _robot("lowerbody")  # no joint limits: the mirror only, unless asked
+    assert Tracker(thesis, _cams(thesis, 1)).mirror_hypothesis
+    assert not Tracker(thesis, _cams(thesis, 1)).swap_hypothesis
+    assert Tracker(thesis, _cams(thesis, 1), swap_hypothesis=True).swap_hypothesis
 
 
 @pytest.mark.parametrize("name", ["lowerbody", "fullbody"])
