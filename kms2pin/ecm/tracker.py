@@ -263,13 +263,14 @@ def _sagittal_mirror(robot: Robot) -> np.ndarray | None:
 
 
 def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
-    """(q indices of the ``left*`` joints, of their ``right*`` twins), if exchanging their
-    angles reflects the body through its own left/right plane (``sagittal``, root frame):
-    checked on the body centres at a random configuration.  None otherwise."""
+    """(q indices of the ``left*`` joints, of their ``right*`` twins; names compared in lower
+    case), if exchanging their angles reflects the body through its own left/right plane
+    (``sagittal``, root frame): checked on the body centres at a random configuration.
+    None otherwise."""
     if sagittal is None:
         return None
     m = robot.model
-    names = {m.names[j]: m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
+    names = {m.names[j].lower(): m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
     pairs = [(i, names["right" + n[4:]]) for n, i in names.items() if n.startswith("left") and "right" + n[4:] in names]
     if not pairs:
         return None
@@ -280,9 +281,9 @@ def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
     swapped[a], swapped[b] = q[b], q[a]
     root = pin.XYZQUATToSE3(q[:7]) if robot.root == "free" else pin.SE3.Identity()
     centres = [np.array([root.actInv(M).translation for M in robot.body_poses(x)]) for x in (q, swapped)]
-    bodies = {n: i for i, n in enumerate(robot.bodies)}
+    bodies = {n.lower(): i for i, n in enumerate(robot.bodies)}
     twin = [bodies.get("right" + n[4:] if n.startswith("left") else "left" + n[5:] if n.startswith("right") else n, -1)
-            for n in robot.bodies]
+            for n in bodies]
     if min(twin) < 0:
         return None
     reflected = centres[0] @ sagittal.T

@@ -339,7 +339,7 @@ def _root_angle_deg(a, b) -> float:
     return float(np.degrees(np.linalg.norm(pin.log3(Ra.T @ Rb))))
 
 
-def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model():
+def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model(tmp_path):
     robot = _anatomical()
     one = Tracker(robot, _cams(robot, 1))
     assert one.mirror_hypothesis and one.swap_hypothesis
@@ -354,6 +354,11 @@ def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model():
         Tracker(hand, _cams(hand, 1), mirror_hypothesis=True)
     with pytest.raises(ValueError, match="left/right"):
         Tracker(hand, _cams(hand, 1), swap_hypothesis=True)
+    capitals = tmp_path / "capitals.kms"  # LeftThigh / RightThigh: names compared in lower case
+    capitals.write_text((DIR / "anatomical" / "lowerbody.kms").read_text().replace("left", "Left").replace("right", "Right"))
+    cap = load(capitals, root="free")
+    assert "LeftThigh_hip" in cap.joint_names
+    assert Tracker(cap, _cams(cap, 1)).swap_hypothesis and Tracker(cap, _cams(cap, 1)).mirror_hypothesis
     thesis = _robot("lowerbody")  # no joint limits: the mirror only, unless asked
     assert Tracker(thesis, _cams(thesis, 1)).mirror_hypothesis
     assert not Tracker(thesis, _cams(thesis, 1)).swap_hypothesis
