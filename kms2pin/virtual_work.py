@@ -187,9 +187,16 @@ class _Structure:
         # each body frame as (parent joint, fixed placement in it), for the native kernel
         self.frame_joint = np.array([float(model.frames[f].parentJoint) for f in robot.frame_ids])
         self.frame_offset = np.array([pin.SE3ToXYZQUAT(model.frames[f].placement) for f in robot.frame_ids])
-        self.revolute_q = np.array(
-            [model.joints[j].idx_q for j in range(1, model.njoints) if model.joints[j].nq == 1], dtype=int
-        )
+        revolute = [j for j in range(1, model.njoints) if model.joints[j].nq == 1]
+        limited = [j for j in revolute if np.isfinite(robot.lower_limits[model.joints[j].idx_q])]
+        # revolute angles without limits: reported modulo a full turn nearest the input
+        self.unlimited_revolute_q = np.array([model.joints[j].idx_q for j in revolute if j not in limited], dtype=int)
+        # joints with limits from the spec: (q indices, v indices, lower, upper), or None
+        self.limits = None
+        if limited:
+            iq = np.array([model.joints[j].idx_q for j in limited])
+            iv = np.array([model.joints[j].idx_v for j in limited])
+            self.limits = (iq, iv, robot.lower_limits[iq], robot.upper_limits[iq])
         self.multi_dof = any(model.joints[j].nv > 1 for j in range(1, model.njoints))
         self.upper = np.triu(np.ones((nv, nv)))
         self.strict_upper = np.triu(np.ones((nv, nv)), 1)
@@ -365,7 +372,7 @@ def static_update(
     nv = robot.model.nv
     eye = np.eye(nv)
     step = np.empty(nv)
-    bounds = _limited_joints(robot)
+    bounds = ev.s.limits
     if bounds is not None:
         q = robot.clamp(q)
 
@@ -419,25 +426,9 @@ def static_update(
             grad, H, gsq = _hold_active(bounds, q, grad, H)
     # a revolute angle and itself plus a full turn are one pose: report the one nearest the
     # input (a joint with limits stays where they put it)
-    rev = ev.s.revolute_q
-    if bounds is not None:
-        rev = rev[~np.isin(rev, bounds[0])]
+    rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
     return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
-
-
-def _limited_joints(robot: Robot):
-    """(q indices, v indices) of the joints with limits from the spec, or None."""
-    if not robot.has_limits:
-        return None
-    model = robot.model
-    iq, iv = [], []
-    for jid in range(1, model.njoints):
-        j = model.joints[jid]
-        if j.nq == 1 and np.isfinite(robot.lower_limits[j.idx_q]):
-            iq.append(j.idx_q)
-            iv.append(j.idx_v)
-    return np.array(iq), np.array(iv), robot.lower_limits[iq], robot.upper_limits[iq]
 
 
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):

@@ -240,21 +240,33 @@ def _log_quat(qr: np.ndarray) -> np.ndarray:
     return v * scale[:, None]
 
 
+def _twin(name: str) -> str:
+    """The left/right twin of a lower-case name (``leftthigh`` <-> ``rightthigh``); itself if
+    it is neither."""
+    if name.startswith("left"):
+        return "right" + name[4:]
+    if name.startswith("right"):
+        return "left" + name[5:]
+    return name
+
+
+def _left_right_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
+    """Index pairs (left, right) of the names that are ``left*`` / ``right*`` twins,
+    compared in lower case."""
+    index = {n.lower(): i for i, n in enumerate(names)}
+    return [(i, index[_twin(n)]) for n, i in index.items() if n.startswith("left") and _twin(n) in index]
+
+
 def _sagittal_mirror(robot: Robot) -> np.ndarray | None:
     """Reflection (3x3, root frame) through the model's left/right plane: its normal is
     the mean offset of the ``left*`` bodies' centres from their ``right*`` twins at rest.
     None if the model has no such pairs."""
-    names = {b.lower(): i for i, b in enumerate(robot.bodies)}
+    pairs = _left_right_pairs(robot.bodies)
+    if not pairs:
+        return None
     poses = robot.body_poses(robot.q_rest)
     root = pin.XYZQUATToSE3(robot.q_rest[:7]) if robot.root == "free" else pin.SE3.Identity()
-    offsets = [
-        poses[i].translation - poses[names[n.replace("left", "right", 1)]].translation
-        for n, i in names.items()
-        if n.startswith("left") and n.replace("left", "right", 1) in names
-    ]
-    if not offsets:
-        return None
-    lateral = root.rotation.T @ np.mean(offsets, axis=0)
+    lateral = root.rotation.T @ np.mean([poses[i].translation - poses[j].translation for i, j in pairs], axis=0)
     norm = float(np.linalg.norm(lateral))
     if norm < 1e-9:
         return None
@@ -270,11 +282,12 @@ def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
     if sagittal is None:
         return None
     m = robot.model
-    names = {m.names[j].lower(): m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
-    pairs = [(i, names["right" + n[4:]]) for n, i in names.items() if n.startswith("left") and "right" + n[4:] in names]
+    revolute = [j for j in range(1, m.njoints) if m.joints[j].nq == 1]
+    pairs = _left_right_pairs([m.names[j] for j in revolute])
     if not pairs:
         return None
-    a, b = (np.array(x) for x in zip(*pairs))
+    a = np.array([m.joints[revolute[i]].idx_q for i, _ in pairs])
+    b = np.array([m.joints[revolute[j]].idx_q for _, j in pairs])
     q = robot.q_rest.copy()
     q[np.concatenate([a, b])] += np.random.default_rng(0).uniform(-0.5, 0.5, 2 * len(a))
     swapped = q.copy()
@@ -282,8 +295,7 @@ def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
     root = pin.XYZQUATToSE3(q[:7]) if robot.root == "free" else pin.SE3.Identity()
     centres = [np.array([root.actInv(M).translation for M in robot.body_poses(x)]) for x in (q, swapped)]
     bodies = {n.lower(): i for i, n in enumerate(robot.bodies)}
-    twin = [bodies.get("right" + n[4:] if n.startswith("left") else "left" + n[5:] if n.startswith("right") else n, -1)
-            for n in bodies]
+    twin = [bodies.get(_twin(n), -1) for n in bodies]
     if min(twin) < 0:
         return None
     reflected = centres[0] @ sagittal.T
@@ -293,6 +305,7 @@ def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
 
 
 _KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped"}
+_MERGE = np.radians(10.0)  # an alternative hypothesis this close to the main one is dropped
 
 
 class Tracker:
@@ -469,7 +482,6 @@ class Tracker:
         )
         self._alts: dict[str, list] = {}  # alternative hypotheses: kind -> [q, previous q, score, fit]
         self._score = 0.0
-        self._merge = np.radians(10.0)  # an alternative this close to the main one is dropped
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -821,12 +833,12 @@ class Tracker:
 
     def _merged(self, kind: str, qa: np.ndarray, q: np.ndarray) -> bool:
         """Whether alternative ``qa`` of ``kind`` has become the main hypothesis ``q``."""
-        if self._root_dofs and self._root_angle(qa, q) >= self._merge:
+        if self._root_dofs and self._root_angle(qa, q) >= _MERGE:
             return False
         if kind == "mirror":
             return True
         a, b = self._swap_pairs
-        return float(np.abs(np.concatenate([qa[a] - q[a], qa[b] - q[b]])).max()) < self._merge
+        return float(np.abs(np.concatenate([qa[a] - q[a], qa[b] - q[b]])).max()) < _MERGE
 
     def _hypotheses_step(self, q: np.ndarray, fit: float, masks, timings: dict) -> tuple[np.ndarray, float, str]:
         """Track the alternative hypotheses alongside the main one (``q``, its ``fit``
