@@ -460,6 +460,134 @@ static void release_views(View *v, Py_ssize_t n)
     }
 }
 
+/* exp(x) for x <= 0 in branch-free arithmetic the compiler can vectorize (a libm
+ * call in a loop stops it): x = n ln2 + r, |r| <= ln2/2, exp(r) by its Taylor
+ * polynomial to degree 13 (truncation < 1e-17 relative), 2^n built in the exponent
+ * bits; within a few ulp of exp().  x below -40 counts as -40: exp(-40) < 2^-57,
+ * so 1 + exp(x) is already 1, and the products of such values never go subnormal
+ * (which would slow every lane down).  Needs strict IEEE rounding of tt - shift:
+ * no -ffast-math / -fassociative-math for this file. */
+static inline double exp_nonpositive(double x)
+{
+    x = x < -40.0 ? -40.0 : x;
+    const double shift = 6755399441055744.0; /* 1.5 * 2^52: adding it rounds to an integer */
+    double tt = x * 1.4426950408889634 + shift;
+    double n = tt - shift;
+    double r = (x - n * 0.6931471803691238) - n * 1.9082149292705877e-10; /* ln 2, hi + lo */
+    double p = 1.0 / 6227020800.0;
+    p = p * r + 1.0 / 479001600.0;
+    p = p * r + 1.0 / 39916800.0;
+    p = p * r + 1.0 / 3628800.0;
+    p = p * r + 1.0 / 362880.0;
+    p = p * r + 1.0 / 40320.0;
+    p = p * r + 1.0 / 5040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    p = p * r + 1.0;
+    p = p * r + 1.0;
+    union { double d; long long i; } u, s;
+    u.d = tt;
+    s.i = (u.i - 0x4338000000000000LL + 1023LL) << 52;
+    return p * s.d;
+}
+
+/* The vectorized loops are compiled three times, for AVX-512, AVX2 and baseline
+ * x86-64; the loader picks the one the CPU runs (GCC function multi-versioning). */
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__)
+#define SIMD_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define SIMD_CLONES
+#endif
+
+#define BLOCK 256
+
+/* view_accumulate's sums with the Jacobian over C-contiguous arrays, by blocks of
+ * pixels: the per-pixel terms first (J = dr/dp and r, both times sqrt(weight)), then
+ * the sums J^T J and J^T r; each loop branch-free, so that the compiler vectorizes
+ * it.  The same terms as view_accumulate's loop; out = cost, evidence, g[6], hu[21]. */
+static inline __attribute__((always_inline)) void edge_sums(Py_ssize_t N, const double *restrict dirs,
+                                                            const double *restrict Y, const double *restrict O,
+                                                            const double *restrict W, const double *A,
+                                                            const double *e, const double *Ae, double inv,
+                                                            double *out)
+{
+    double a00 = A[0], a01 = A[1], a02 = A[2], a10 = A[3], a11 = A[4], a12 = A[5], a20 = A[6], a21 = A[7], a22 = A[8];
+    double e0 = e[0], e1 = e[1], e2 = e[2], b0 = Ae[0], b1 = Ae[1], b2 = Ae[2];
+    double cost = 0.0, evid = 0.0, acc[27] = {0};
+    double Jb[7][BLOCK] __attribute__((aligned(64)));
+    for (Py_ssize_t i0 = 0; i0 < N; i0 += BLOCK) {
+        int n = (int)(N - i0 < BLOCK ? N - i0 : BLOCK);
+        const double *D = dirs + 3 * i0, *Yb = Y + i0, *Ob = O + i0, *Wb = W ? W + i0 : NULL;
+#pragma omp simd reduction(+ : cost, evid)
+        for (int i = 0; i < n; i++) {
+            double d0 = D[3 * i], d1 = D[3 * i + 1], d2 = D[3 * i + 2];
+            double ad0 = a00 * d0 + a01 * d1 + a02 * d2, ad1 = a10 * d0 + a11 * d1 + a12 * d2,
+                   ad2 = a20 * d0 + a21 * d1 + a22 * d2;
+            double dot = d0 * b0 + d1 * b1 + d2 * b2, nn = ad0 * d0 + ad1 * d1 + ad2 * d2;
+            double s = nn > 0.0 ? -dot / nn : 0.0;
+            s = s < 0.0 ? 0.0 : s;
+            double q0 = e0 + s * d0, q1 = e1 + s * d1, q2 = e2 + s * d2;
+            double c0 = b0 + s * ad0, c1 = b1 + s * ad1, c2 = b2 + s * ad2; /* g = A q* */
+            double a2 = q0 * c0 + q1 * c1 + q2 * c2;
+            double h = (1.0 - a2) * inv, ah = fabs(h);
+            double z = exp_nonpositive(-ah), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+            double sg = h >= 0 ? s1 : s0;
+            double y = Yb[i], o = Ob[i], wt = Wb ? Wb[i] : 1.0, sw = Wb ? sqrt(wt) : 1.0;
+            double fr = 1.0 - o, r = y - o - fr * sg;
+            cost += wt * r * r;
+            evid += wt * fr * sg * y;
+            double w = fr * s0 * s1 * inv;
+            w = (ah < H_CUT && w > 0.0) ? -2.0 * w * sw : 0.0; /* saturated edge: no gradient */
+            Jb[0][i] = c0 * w;
+            Jb[1][i] = c1 * w;
+            Jb[2][i] = c2 * w;
+            Jb[3][i] = (q1 * c2 - q2 * c1) * w;
+            Jb[4][i] = (q2 * c0 - q0 * c2) * w;
+            Jb[5][i] = (q0 * c1 - q1 * c0) * w;
+            Jb[6][i] = r * sw;
+        }
+        int m = 0;
+        for (int a = 0; a < 6; a++)
+            for (int c = a; c < 7; c++, m++) {
+                const double *x = Jb[a], *z = Jb[c];
+                double sum = 0.0;
+#pragma omp simd reduction(+ : sum)
+                for (int i = 0; i < n; i++) sum += x[i] * z[i];
+                acc[m] += sum;
+            }
+    }
+    /* acc: for each a, J_a.J_c (c = a..5) then J_a.r */
+    out[0] = cost;
+    out[1] = evid;
+    int m = 0, k = 0;
+    for (int a = 0; a < 6; a++) {
+        for (int c = a; c < 6; c++) out[8 + k++] = acc[m++];
+        out[2 + a] = acc[m++];
+    }
+}
+
+/* edge_sums specialized on whether there are weights (a per-pixel test on W in the
+ * loop stops it from vectorizing well: 2x slower). */
+SIMD_CLONES
+static void view_accumulate_jac(Py_ssize_t N, const double *restrict dirs, const double *restrict Y,
+                                const double *restrict O, const double *restrict W, const double *A, const double *e,
+                                const double *Ae, double inv, double *out)
+{
+    if (W)
+        edge_sums(N, dirs, Y, O, W, A, e, Ae, inv, out);
+    else
+        edge_sums(N, dirs, Y, O, NULL, A, e, Ae, inv, out);
+}
+
+static int contiguous_1d(const Buf *b) { return b->view.ndim == 1 && b->view.strides[0] == 8; }
+static int contiguous_n3(const Buf *b)
+{
+    return b->view.ndim == 2 && b->view.strides[1] == 8 && b->view.strides[0] == 24;
+}
+
 /* The per-pixel sums of one view (kms2pin.ecm.mstep._evaluate), added to cost,
  * evidence, g6 (6) and Hu (the 21 entries of the upper triangle of H, row by row). */
 static void view_accumulate(const View *v, const double *A, const double *t, int jac, double *cost_io,
@@ -468,6 +596,18 @@ static void view_accumulate(const View *v, const double *A, const double *t, int
     double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
     for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
     Py_ssize_t N = v->dirs.view.shape[0];
+    if (jac && contiguous_n3(&v->dirs) && contiguous_1d(&v->y) && contiguous_1d(&v->o) &&
+        (!v->has_w || contiguous_1d(&v->w))) {
+        double out[29];
+        view_accumulate_jac(N, (const double *)v->dirs.view.buf, (const double *)v->y.view.buf,
+                            (const double *)v->o.view.buf, v->has_w ? (const double *)v->w.view.buf : NULL, A, e, Ae,
+                            v->inv, out);
+        *cost_io += out[0];
+        *evid_io += out[1];
+        for (int a = 0; a < 6; a++) g6[a] += out[2 + a];
+        for (int m = 0; m < 21; m++) Hu[m] += out[8 + m];
+        return;
+    }
     double inv = v->inv, cost = 0.0, evidence = 0.0, hu[21] = {0}, gl[6] = {0}; /* local: no aliasing */
     for (Py_ssize_t i = 0; i < N; i++) {
         double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
