@@ -494,6 +494,64 @@ static inline double exp_nonpositive(double x)
     return p * s.d;
 }
 
+/* log(1 + z) for 0 <= z <= 1, vectorizable: 2 atanh(u), u = z / (2 + z) <= 1/3, by
+ * its series to u^31 (truncation < 2e-17 relative). */
+static inline double log1p_unit(double z)
+{
+    double u = z / (2.0 + z), u2 = u * u, p = 1.0 / 31.0;
+    p = p * u2 + 1.0 / 29.0;
+    p = p * u2 + 1.0 / 27.0;
+    p = p * u2 + 1.0 / 25.0;
+    p = p * u2 + 1.0 / 23.0;
+    p = p * u2 + 1.0 / 21.0;
+    p = p * u2 + 1.0 / 19.0;
+    p = p * u2 + 1.0 / 17.0;
+    p = p * u2 + 1.0 / 15.0;
+    p = p * u2 + 1.0 / 13.0;
+    p = p * u2 + 1.0 / 11.0;
+    p = p * u2 + 1.0 / 9.0;
+    p = p * u2 + 1.0 / 7.0;
+    p = p * u2 + 1.0 / 5.0;
+    p = p * u2 + 1.0 / 3.0;
+    p = p * u2 + 1.0;
+    return 2.0 * u * p;
+}
+
+/* softplus(h) = log(1 + e^h) = max(h, 0) + log1p(e^-|h|), vectorizable (exp clamped
+ * as in exp_nonpositive: softplus(h) for h < -40 is e^-40, not e^h). */
+static inline double softplus_v(double h)
+{
+    return (h > 0.0 ? h : 0.0) + log1p_unit(exp_nonpositive(-fabs(h)));
+}
+
+/* 1 - e^x for x <= 0, vectorizable and without cancellation near 0:
+ * e^x = 2^n e^r, e^r - 1 = r (1 + r/2 + ... + r^12/13!), 1 - e^x = (1 - 2^n) - 2^n (e^r - 1). */
+static inline double one_minus_exp(double x)
+{
+    x = x < -40.0 ? -40.0 : x;
+    const double shift = 6755399441055744.0;
+    double tt = x * 1.4426950408889634 + shift;
+    double n = tt - shift;
+    double r = (x - n * 0.6931471803691238) - n * 1.9082149292705877e-10;
+    double p = 1.0 / 6227020800.0;
+    p = p * r + 1.0 / 479001600.0;
+    p = p * r + 1.0 / 39916800.0;
+    p = p * r + 1.0 / 3628800.0;
+    p = p * r + 1.0 / 362880.0;
+    p = p * r + 1.0 / 40320.0;
+    p = p * r + 1.0 / 5040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    p = p * r + 1.0;
+    union { double d; long long i; } u, sc;
+    u.d = tt;
+    sc.i = (u.i - 0x4338000000000000LL + 1023LL) << 52;
+    return (1.0 - sc.d) - sc.d * (r * p);
+}
+
 /* The vectorized loops are compiled three times, for AVX-512, AVX2 and baseline
  * x86-64; the loader picks the one the CPU runs (GCC function multi-versioning). */
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__)
@@ -732,6 +790,68 @@ static int box_arg(PyObject *const *args, const Buf *img, Py_ssize_t N, Py_ssize
     return 0;
 }
 
+/* estep_body's loop over a box, row by row, vectorized: lf and lfo point at the box's
+ * first pixel in log_free / log_free_o (rows `stride` doubles apart; lfo may be NULL). */
+static inline __attribute__((always_inline)) void estep_rows_body(Py_ssize_t rows, Py_ssize_t cols,
+                                                                  const double *restrict dirs, const double *A,
+                                                                  const double *e, const double *Ae, double inv,
+                                                                  double *restrict lf, Py_ssize_t stride,
+                                                                  double *restrict sp, double *restrict lfo,
+                                                                  Py_ssize_t stride_o, double widen)
+{
+    double a00 = A[0], a01 = A[1], a02 = A[2], a10 = A[3], a11 = A[4], a12 = A[5], a20 = A[6], a21 = A[7], a22 = A[8];
+    double e0 = e[0], e1 = e[1], e2 = e[2], b0 = Ae[0], b1 = Ae[1], b2 = Ae[2];
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        const double *D = dirs + 3 * r * cols;
+        double *S = sp + r * cols, *L = lf + r * stride, *LO = lfo ? lfo + r * stride_o : NULL;
+#pragma omp simd
+        for (Py_ssize_t c = 0; c < cols; c++) {
+            double d0 = D[3 * c], d1 = D[3 * c + 1], d2 = D[3 * c + 2];
+            double ad0 = a00 * d0 + a01 * d1 + a02 * d2, ad1 = a10 * d0 + a11 * d1 + a12 * d2,
+                   ad2 = a20 * d0 + a21 * d1 + a22 * d2;
+            double dot = d0 * b0 + d1 * b1 + d2 * b2, nn = ad0 * d0 + ad1 * d1 + ad2 * d2;
+            double s = nn > 0.0 ? -dot / nn : 0.0;
+            s = s < 0.0 ? 0.0 : s;
+            double q0 = e0 + s * d0, q1 = e1 + s * d1, q2 = e2 + s * d2;
+            double a2 = q0 * (b0 + s * ad0) + q1 * (b1 + s * ad1) + q2 * (b2 + s * ad2);
+            double h = (1.0 - a2) * inv, v = softplus_v(h);
+            S[c] = v;
+            L[c] -= v;
+            if (LO) LO[c] -= softplus_v(widen * h);
+        }
+    }
+}
+
+SIMD_CLONES
+static void estep_rows(Py_ssize_t rows, Py_ssize_t cols, const double *restrict dirs, const double *A, const double *e,
+                       const double *Ae, double inv, double *restrict lf, Py_ssize_t stride, double *restrict sp,
+                       double *restrict lfo, Py_ssize_t stride_o, double widen)
+{
+    if (lfo)
+        estep_rows_body(rows, cols, dirs, A, e, Ae, inv, lf, stride, sp, lfo, stride_o, widen);
+    else
+        estep_rows_body(rows, cols, dirs, A, e, Ae, inv, lf, stride, sp, NULL, 0, widen);
+}
+
+/* estep_view's loop, vectorized: lf and mask point at the box's first pixel. */
+SIMD_CLONES
+static void estep_view_rows(Py_ssize_t rows, Py_ssize_t cols, const double *restrict lf, Py_ssize_t stride,
+                            const unsigned char *restrict mask, Py_ssize_t mstride, const double *restrict sp,
+                            double *restrict o, double *restrict y)
+{
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        const double *L = lf + r * stride, *S = sp + r * cols;
+        const unsigned char *M = mask + r * mstride;
+        double *Or = o + r * cols, *Yr = y + r * cols;
+#pragma omp simd
+        for (Py_ssize_t c = 0; c < cols; c++) {
+            double others = L[c] + S[c];
+            Or[c] = one_minus_exp(others < 0.0 ? others : 0.0);
+            Yr[c] = M[c] ? 1.0 : 0.0;
+        }
+    }
+}
+
 /* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp_out, log_free_o|None, widen)
  * h = (1 - a^2) inv on the box; sp = softplus(h) = -log(1 - s); log_free[box] -= sp;
  * with log_free_o also log_free_o[box] -= softplus(widen h). */
@@ -759,6 +879,14 @@ static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t na
         return NULL;
     }
     for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    if (contiguous_n3(&b[0]) && contiguous_1d(&b[2]) && b[1].view.strides[1] == 8 && b[1].view.strides[0] % 8 == 0 &&
+        (!has_o || (b[3].view.strides[1] == 8 && b[3].view.strides[0] % 8 == 0))) {
+        double *lf = &AT(b[1], box[0], box[1]), *lfo = has_o ? &AT(b[3], box[0], box[1]) : NULL;
+        estep_rows(box[2], box[3], (const double *)b[0].view.buf, A, e, Ae, inv, lf, b[1].view.strides[0] / 8,
+                   (double *)b[2].view.buf, lfo, has_o ? b[3].view.strides[0] / 8 : 0, widen);
+        release(b, 4);
+        Py_RETURN_NONE;
+    }
     Py_ssize_t i = 0;
     for (Py_ssize_t r = 0; r < box[2]; r++)
         for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
@@ -791,6 +919,14 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
         vec_arg(args[8], &b[4], b[2].view.shape[0], 1, "y") < 0) {
         release(b, 5);
         return NULL;
+    }
+    if (contiguous_1d(&b[2]) && contiguous_1d(&b[3]) && contiguous_1d(&b[4]) && b[0].view.strides[1] == 8 &&
+        b[0].view.strides[0] % 8 == 0 && b[1].view.strides[1] == 1) {
+        const unsigned char *m = (const unsigned char *)b[1].view.buf + box[0] * b[1].view.strides[0] + box[1];
+        estep_view_rows(box[2], box[3], &AT(b[0], box[0], box[1]), b[0].view.strides[0] / 8, m, b[1].view.strides[0],
+                        (const double *)b[2].view.buf, (double *)b[3].view.buf, (double *)b[4].view.buf);
+        release(b, 5);
+        Py_RETURN_NONE;
     }
     Py_ssize_t i = 0;
     for (Py_ssize_t r = 0; r < box[2]; r++)
