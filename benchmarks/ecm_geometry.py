@@ -1,7 +1,10 @@
 """Micro-benchmark of the ECM image geometry at 320x240.
 
 Prints the median wall and CPU time of ``projected_density`` for one body (whole image
-and its outer bounding box) and of one ``e_step`` on a 17-body scene.
+and its outer bounding box) and of one ``e_step`` on a 17-body scene; then the tracker's
+per-pixel C kernels (M-step sums with the Jacobian, E-step softplus) on one body's box,
+vectorized against their scalar loop in the same run (the C code takes the scalar loop
+when the arrays are not contiguous, so a strided copy of the same pixels times it).
 
     .venv/bin/python benchmarks/ecm_geometry.py
 """
@@ -16,6 +19,8 @@ import numpy as np
 import pinocchio as pin
 
 from kms2pin.ecm import Camera, body_bbox, e_step, projected_density, render_mask
+from kms2pin.ecm.mstep import body_image
+from kms2pin.native import kernels
 
 
 def median_time(fn: Callable[[], object], repeat: int = 200) -> tuple[float, float]:
@@ -76,6 +81,40 @@ def main() -> None:
     show(f"projected_density, {w}x{h} px bbox region", region)
     show("body_bbox + projected_density on that region", with_box)
     show(f"e_step, 17 bodies (mean bbox {np.mean(areas):.0f} px, {int(mask.sum())} fg px)", estep)
+    if kernels is not None:
+        kernel_ratios(cam, pose, inner, rng)
+
+
+def strided(a: np.ndarray) -> np.ndarray:
+    """The same values in a non-contiguous array (every other element of a twice as long one)."""
+    big = np.zeros((2 * a.shape[0],) + a.shape[1:])
+    big[::2] = a
+    return big[::2]
+
+
+def kernel_ratios(cam: Camera, pose: pin.SE3, inner: np.ndarray, rng: np.random.Generator) -> None:
+    img = body_image(cam, pose, inner, 0.7)
+    n = len(img.dirs)
+    A = (pose.rotation / inner**2) @ pose.rotation.T
+    e = cam.centre - pose.translation
+    inv = 1.0 / (2.0 * img.delta)
+    y = (rng.random(n) < 0.5).astype(float)
+    o = rng.random(n) * 0.2
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    fast = median_time(lambda: kernels.silhouette_fit(img.dirs, A, e, inv, y, o, None, True, H, g))
+    d2, y2, o2 = strided(img.dirs), strided(y), strided(o)
+    slow = median_time(lambda: kernels.silhouette_fit(d2, A, e, inv, y2, o2, None, True, H, g))
+    show(f"M-step sums + Jacobian, {n} px, vectorized", fast)
+    show(f"  the scalar loop: {slow[1] / fast[1]:.2f}x the vectorized CPU time", slow)
+    b = img.box
+    rows, cols = b.v1 - b.v0, b.u1 - b.u0
+    log_free, sp = np.zeros(cam.shape), np.empty(n)
+    fast = median_time(
+        lambda: kernels.estep_body(img.dirs, A, e, inv, log_free, b.v0, b.u0, rows, cols, sp, None, 1.0)
+    )
+    slow = median_time(lambda: kernels.estep_body(d2, A, e, inv, log_free, b.v0, b.u0, rows, cols, sp, None, 1.0))
+    show(f"E-step softplus on the body's box, {n} px, vectorized", fast)
+    show(f"  the scalar loop: {slow[1] / fast[1]:.2f}x the vectorized CPU time", slow)
 
 
 if __name__ == "__main__":

@@ -323,6 +323,11 @@ class Tracker:
             translation: this many hundredths of the model height per degree).  At
             0.2 the benchmark's accuracy equals that at 0.05 with 10-20 % fewer
             iterations.
+        tol_px: also stop when no body moves more than this many pixels in any camera
+            (its centre and the ends of its inner ellipsoid's axes, projected; None:
+            joint angles only).  With one camera a body creeps along the viewing ray,
+            where the images hardly see it, long after its outline has settled: the
+            joint-angle test alone then runs every frame to ``max_iterations``.
         prediction: ``"constant_velocity"`` or ``"previous"``.
         delta_start, delta_final: edge width of the sharp silhouettes (pixels), annealed
             by halves from the first to the second within a frame.
@@ -394,6 +399,7 @@ class Tracker:
         max_iterations: int = 8,
         min_iterations: int = 3,
         tol_deg: float = 0.2,
+        tol_px: float | None = 0.25,
         prediction: str = "constant_velocity",
         delta_start: float = 3.0,
         delta_final: float = 0.7,
@@ -428,6 +434,7 @@ class Tracker:
         self.max_iterations = max(1, int(max_iterations))
         self.min_iterations = max(1, min(int(min_iterations), self.max_iterations))
         self.tol = np.radians(tol_deg)
+        self.tol_px = None if tol_px is None else float(tol_px)
         self.prediction = prediction
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)
         self.m_iterations, self.damping = m_iterations, damping
@@ -532,6 +539,27 @@ class Tracker:
         return inter / union if union else 1.0
 
     # ------------------------------------------------------------------ ECM
+    def _outline_points(self, q: np.ndarray) -> np.ndarray:
+        """World points (n_bodies * 7, 3) that outline the bodies at ``q``: each inner
+        ellipsoid's centre and the two ends of each of its axes."""
+        poses = self.robot.body_poses(q)
+        R = np.array([P.rotation for P in poses])  # (n, 3, 3)
+        t = np.array([P.translation for P in poses])  # (n, 3)
+        ends = R * np.asarray(self.inner)[:, None, :]  # (n, 3, 3): column k = axis k's half length
+        pts = np.concatenate([t[:, None], t[:, None] + ends.transpose(0, 2, 1), t[:, None] - ends.transpose(0, 2, 1)], 1)
+        return pts.reshape(-1, 3)
+
+    def _image_motion(self, a: np.ndarray, b: np.ndarray) -> float:
+        """Largest image displacement (pixels, over the cameras) between two sets of
+        :meth:`_outline_points`; points behind a camera are left out."""
+        moved = 0.0
+        for cam in self.cameras:
+            d = np.linalg.norm(cam.project(a) - cam.project(b), axis=1)
+            d = d[np.isfinite(d)]
+            if len(d):
+                moved = max(moved, float(d.max()))
+        return moved
+
     def _change(self, q0: np.ndarray, q1: np.ndarray) -> float:
         """Largest joint change (rad); root translation in hundredths of the height per degree."""
         dq = np.abs(pin.difference(self.robot.model, q0, q1))
@@ -789,13 +817,18 @@ class Tracker:
         it = 0
         delta = self.delta_start
         limit = self.max_iterations if max_iterations is None else max(1, int(max_iterations))
+        pts = self._outline_points(q) if self.tol_px is not None else None
         for it in range(1, limit + 1):
             q_new = self.iterate(q, masks, delta, timings)
-            change = self._change(q, q_new)
+            settled = self._change(q, q_new) < self.tol
+            if pts is not None:
+                pts_new = self._outline_points(q_new)
+                settled = settled or self._image_motion(pts, pts_new) < self.tol_px
+                pts = pts_new
             q = q_new
             at_final = delta <= self.delta_final * 1.0001
             delta = max(self.delta_final, 0.5 * delta)
-            if at_final and it >= min(self.min_iterations, limit) and change < self.tol:
+            if at_final and it >= min(self.min_iterations, limit) and settled:
                 return q, it, True
         return q, it, False
 
