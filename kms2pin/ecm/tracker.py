@@ -718,7 +718,7 @@ class Tracker:
         model, data = robot.model, robot.data
         n, nv = len(fits), model.nv
         S = np.ones((n, 6))
-        S[:, :3] = np.array([float(np.mean(li)) for li in self.inner])[:, None]
+        S[:, :3] = np.asarray(self.inner).mean(axis=1)[:, None]
         Hf = np.array([f.hessian for f in fits])  # (n, 6, 6)
         hmax = float((np.einsum("nii->ni", Hf) * S**2).max())
         if hmax <= 0:
