@@ -475,3 +475,40 @@ def test_one_camera_still_subject_converges_on_the_outline_test():
     # one view fixes depth only through the outline's size: the track settles about 3 %
     # of the height off in depth (as with the joint-angle test alone), not further
     assert centre_error(robot, res[-1].q, qt) < 5.0
+
+
+def test_depth_prior_holds_the_root_distance_along_the_ray():
+    """The one-camera depth creep of a still subject (test above) is held by the depth
+    spring; its gradient is that of k/2 (n . (p - anchor))^2 in the root's local velocity."""
+    robot = _robot("lowerbody")
+    cams = _cams(robot, 1)
+    qt = robot.q_rest.copy()
+    qt[7:] += np.radians(np.random.default_rng(3).uniform(-15, 15, robot.nq - 7))
+    masks = render(robot, qt, cams)
+    kw = dict(q0=qt, mirror_hypothesis=False, swap_hypothesis=False, calibrate_sizes=False)
+    drift = {}
+    for prior in (0.0, 1.0):
+        tr = Tracker(robot, cams, depth_prior=prior, **kw)
+        res = [tr.step(masks) for _ in range(4)]
+        drift[prior] = abs(res[-1].q[2] - qt[2])  # the default camera looks along world z
+    assert drift[0.0] > 0.02
+    assert drift[1.0] < 0.25 * drift[0.0]
+    # the spring's gradient against finite differences of its energy
+    tr = Tracker(robot, cams, depth_prior=1.0, **kw)
+    tr._anchor = qt[:3] + np.array([0.05, -0.02, 0.3])
+    q = robot.random_configuration(np.random.default_rng(4), 20)
+    nv = robot.model.nv
+    A, g = np.eye(nv), np.zeros(nv)
+    pin.forwardKinematics(robot.model, robot.data, q)
+    tr._depth_spring(A, g, robot.data)
+    k = 1.0  # depth_prior * trace(eye(3)) / 3
+    n = tr._anchor - cams[0].centre
+    n /= np.linalg.norm(n)
+
+    def energy(dv):
+        p = pin.integrate(robot.model, q, dv)[:3]
+        return 0.5 * k * float(n @ (p - tr._anchor)) ** 2
+
+    eps = 1e-6
+    fd = [(energy(eps * np.eye(nv)[a]) - energy(-eps * np.eye(nv)[a])) / (2 * eps) for a in range(nv)]
+    np.testing.assert_allclose(g, fd, atol=1e-7)
