@@ -57,7 +57,10 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
-    runs = {"default": [], "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration"]}
+    runs = {
+        "default": [],
+        "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02"],
+    }
     for name, flags in runs.items():
         out = tmp_path / name
         assert main(["track", anatomical, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
@@ -66,9 +69,11 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
             scales = z["body_scales"]
         if name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
+            assert meta["depth_prior"] == 0.0
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
             assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
+            assert meta["depth_prior"] == 0.02
             np.testing.assert_array_equal(scales, 1.0)
 
 
@@ -140,3 +145,13 @@ def test_track_reports_frames_it_cannot_fit(tmp_path, cams2, capsys):
     assert "fit the masks poorly" in err and "first at frame 0" in err
     rows = (out / "trajectory.csv").read_text().splitlines()
     assert all("poor fit" in row for row in rows[1:])
+
+
+@pytest.mark.parametrize("value", ["-0.1", "nan", "strong"])
+def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, value):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["track", str(SPECS / "lowerbody.kms"), "--masks", str(tmp_path), "--depth-prior", value, "-o", str(out)])
+    assert exc.value.code == 2
+    assert "--depth-prior" in capsys.readouterr().err
+    assert not out.exists()

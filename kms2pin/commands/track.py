@@ -73,8 +73,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with one camera and a model with joint limits, do not also track the pose with "
                         "left and right swapped (it tells the legs apart after a side-on view; one more "
                         "ECM a frame)")
+    p.add_argument("--depth-prior", type=_non_negative, default=0.0, metavar="K",
+                   help="a spring holding the root's distance along each camera's ray at each frame's "
+                        "prediction, K times the root's stiffness (default 0: off; with one camera 0.02 "
+                        "keeps a lost track from sliding towards the camera)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not value >= 0.0:  # also rejects nan
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
+    return value
 
 
 def _frames_in(folder: Path) -> dict[int, Path]:
@@ -258,6 +272,7 @@ def run(args: argparse.Namespace) -> int:
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None,
+        depth_prior=args.depth_prior,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -266,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
             "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
-            "swap_hypothesis": tracker.swap_hypothesis,
+            "swap_hypothesis": tracker.swap_hypothesis, "depth_prior": tracker.depth_prior,
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]

@@ -446,6 +446,8 @@ class Tracker:
         self.tol = np.radians(tol_deg)
         self.tol_px = None if tol_px is None else float(tol_px)
         self.depth_prior = float(depth_prior)
+        if not self.depth_prior >= 0.0:
+            raise ValueError(f"depth_prior must be >= 0, not {depth_prior!r}")
         self._anchor: np.ndarray | None = None
         self.prediction = prediction
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)

@@ -491,6 +491,8 @@ def test_depth_prior_holds_the_root_distance_along_the_ray():
         tr = Tracker(robot, cams, depth_prior=prior, **kw)
         res = [tr.step(masks) for _ in range(4)]
         drift[prior] = abs(res[-1].q[2] - qt[2])  # the default camera looks along world z
+    with pytest.raises(ValueError, match="depth_prior"):
+        Tracker(robot, cams, depth_prior=-0.1)
     assert drift[0.0] > 0.02
     assert drift[1.0] < 0.25 * drift[0.0]
     # the spring's gradient against finite differences of its energy
