@@ -370,19 +370,52 @@ static PyObject *solve_shifted(PyObject *self, PyObject *const *args, Py_ssize_t
 /* |h| beyond which the logistic edge counts as saturated: kms2pin.ecm.mstep.H_CUT */
 #define H_CUT 7.0
 
+/* One body's ellipsoid seen from a camera: A, e and A e, held in locals before a pixel
+ * loop so that the compiler keeps them in registers and vectorizes the loop. */
+typedef struct {
+    double a00, a01, a02, a10, a11, a12, a20, a21, a22, e0, e1, e2, b0, b1, b2;
+} Quadric;
+
+typedef struct {
+    double a2, q0, q1, q2, g0, g1, g2; /* a^2, q*, g = A q* */
+} Closest;
+
+static inline Quadric quadric(const double *A, const double *e, const double *Ae)
+{
+    Quadric k = {A[0], A[1], A[2], A[3], A[4], A[5], A[6], A[7], A[8], e[0], e[1], e[2], Ae[0], Ae[1], Ae[2]};
+    return k;
+}
+
+/* The closest approach of the ray d to the ellipsoid (branch-free: vectorizable). */
+static inline __attribute__((always_inline)) Closest ray_closest(Quadric k, double d0, double d1, double d2)
+{
+    double ad0 = k.a00 * d0 + k.a01 * d1 + k.a02 * d2, ad1 = k.a10 * d0 + k.a11 * d1 + k.a12 * d2,
+           ad2 = k.a20 * d0 + k.a21 * d1 + k.a22 * d2;
+    double dot = d0 * k.b0 + d1 * k.b1 + d2 * k.b2, nn = ad0 * d0 + ad1 * d1 + ad2 * d2;
+    double s = nn > 0.0 ? -dot / nn : 0.0;
+    s = s < 0.0 ? 0.0 : s;
+    Closest c;
+    c.q0 = k.e0 + s * d0;
+    c.q1 = k.e1 + s * d1;
+    c.q2 = k.e2 + s * d2;
+    c.g0 = k.b0 + s * ad0;
+    c.g1 = k.b1 + s * ad1;
+    c.g2 = k.b2 + s * ad2;
+    c.a2 = c.q0 * c.g0 + c.q1 * c.g1 + c.q2 * c.g2;
+    return c;
+}
+
 static inline double closest_a2(const double *A, const double *e, const double *Ae, const double *d, double *qs,
                                 double *g)
 {
-    double Ad[3];
-    for (int r = 0; r < 3; r++) Ad[r] = A[3 * r] * d[0] + A[3 * r + 1] * d[1] + A[3 * r + 2] * d[2];
-    double dot = dot3(d, Ae), nn = dot3(Ad, d);
-    double s = nn > 0.0 ? -dot / nn : 0.0;
-    if (s < 0.0) s = 0.0;
-    for (int c = 0; c < 3; c++) {
-        qs[c] = e[c] + s * d[c];
-        g[c] = Ae[c] + s * Ad[c];
-    }
-    return dot3(qs, g);
+    Closest c = ray_closest(quadric(A, e, Ae), d[0], d[1], d[2]);
+    qs[0] = c.q0;
+    qs[1] = c.q1;
+    qs[2] = c.q2;
+    g[0] = c.g0;
+    g[1] = c.g1;
+    g[2] = c.g2;
+    return c.a2;
 }
 
 static int vec_arg(PyObject *obj, Buf *b, Py_ssize_t n, int writable, const char *name)
@@ -460,14 +493,14 @@ static void release_views(View *v, Py_ssize_t n)
     }
 }
 
-/* exp(x) for x <= 0 in branch-free arithmetic the compiler can vectorize (a libm
- * call in a loop stops it): x = n ln2 + r, |r| <= ln2/2, exp(r) by its Taylor
- * polynomial to degree 13 (truncation < 1e-17 relative), 2^n built in the exponent
- * bits; within a few ulp of exp().  x below -40 counts as -40: exp(-40) < 2^-57,
- * so 1 + exp(x) is already 1, and the products of such values never go subnormal
- * (which would slow every lane down).  Needs strict IEEE rounding of tt - shift:
- * no -ffast-math / -fassociative-math for this file. */
-static inline double exp_nonpositive(double x)
+/* e^x for x <= 0 in branch-free arithmetic the compiler can vectorize (a libm call in
+ * a loop stops it): x = n ln2 + r, |r| <= ln2/2; sets *scale = 2^n (built in the
+ * exponent bits) and returns e^r - 1 = r (1 + r/2 + ... + r^12/13!) (truncation
+ * < 1e-17 relative), so that e^x = scale (1 + e^r - 1) within a few ulp.  x below
+ * -40 counts as -40: e^-40 < 2^-57, so 1 + e^x is already 1, and the products of
+ * such values never go subnormal (which would slow every lane down).  Needs strict
+ * IEEE rounding of tt - shift: no -ffast-math / -fassociative-math for this file. */
+static inline double expm1_reduced(double x, double *scale)
 {
     x = x < -40.0 ? -40.0 : x;
     const double shift = 6755399441055744.0; /* 1.5 * 2^52: adding it rounds to an integer */
@@ -487,11 +520,26 @@ static inline double exp_nonpositive(double x)
     p = p * r + 1.0 / 6.0;
     p = p * r + 0.5;
     p = p * r + 1.0;
-    p = p * r + 1.0;
-    union { double d; long long i; } u, s;
+    union { double d; long long i; } u, sc;
     u.d = tt;
-    s.i = (u.i - 0x4338000000000000LL + 1023LL) << 52;
-    return p * s.d;
+    sc.i = (u.i - 0x4338000000000000LL + 1023LL) << 52;
+    *scale = sc.d;
+    return r * p;
+}
+
+/* e^x for x <= 0, vectorizable (expm1_reduced). */
+static inline double exp_nonpositive(double x)
+{
+    double scale, em1 = expm1_reduced(x, &scale);
+    return scale + scale * em1;
+}
+
+/* 1 - e^x for x <= 0, vectorizable and without cancellation near 0:
+ * (1 - 2^n) - 2^n (e^r - 1) (expm1_reduced). */
+static inline double one_minus_exp(double x)
+{
+    double scale, em1 = expm1_reduced(x, &scale);
+    return (1.0 - scale) - scale * em1;
 }
 
 /* log(1 + z) for 0 <= z <= 1, vectorizable: 2 atanh(u), u = z / (2 + z) <= 1/3, by
@@ -524,34 +572,6 @@ static inline double softplus_v(double h)
     return (h > 0.0 ? h : 0.0) + log1p_unit(exp_nonpositive(-fabs(h)));
 }
 
-/* 1 - e^x for x <= 0, vectorizable and without cancellation near 0:
- * e^x = 2^n e^r, e^r - 1 = r (1 + r/2 + ... + r^12/13!), 1 - e^x = (1 - 2^n) - 2^n (e^r - 1). */
-static inline double one_minus_exp(double x)
-{
-    x = x < -40.0 ? -40.0 : x;
-    const double shift = 6755399441055744.0;
-    double tt = x * 1.4426950408889634 + shift;
-    double n = tt - shift;
-    double r = (x - n * 0.6931471803691238) - n * 1.9082149292705877e-10;
-    double p = 1.0 / 6227020800.0;
-    p = p * r + 1.0 / 479001600.0;
-    p = p * r + 1.0 / 39916800.0;
-    p = p * r + 1.0 / 3628800.0;
-    p = p * r + 1.0 / 362880.0;
-    p = p * r + 1.0 / 40320.0;
-    p = p * r + 1.0 / 5040.0;
-    p = p * r + 1.0 / 720.0;
-    p = p * r + 1.0 / 120.0;
-    p = p * r + 1.0 / 24.0;
-    p = p * r + 1.0 / 6.0;
-    p = p * r + 0.5;
-    p = p * r + 1.0;
-    union { double d; long long i; } u, sc;
-    u.d = tt;
-    sc.i = (u.i - 0x4338000000000000LL + 1023LL) << 52;
-    return (1.0 - sc.d) - sc.d * (r * p);
-}
-
 /* The vectorized loops are compiled three times, for AVX-512, AVX2 and baseline
  * x86-64; the loader picks the one the CPU runs (GCC function multi-versioning,
  * which needs glibc's ifunc; elsewhere the baseline build only). */
@@ -573,8 +593,7 @@ static inline __attribute__((always_inline)) void edge_sums(Py_ssize_t N, const 
                                                             const double *e, const double *Ae, double inv,
                                                             double *out)
 {
-    double a00 = A[0], a01 = A[1], a02 = A[2], a10 = A[3], a11 = A[4], a12 = A[5], a20 = A[6], a21 = A[7], a22 = A[8];
-    double e0 = e[0], e1 = e[1], e2 = e[2], b0 = Ae[0], b1 = Ae[1], b2 = Ae[2];
+    const Quadric kq = quadric(A, e, Ae);
     double cost = 0.0, evid = 0.0, acc[27] = {0};
     double Jb[7][BLOCK] __attribute__((aligned(64)));
     for (Py_ssize_t i0 = 0; i0 < N; i0 += BLOCK) {
@@ -582,16 +601,9 @@ static inline __attribute__((always_inline)) void edge_sums(Py_ssize_t N, const 
         const double *D = dirs + 3 * i0, *Yb = Y + i0, *Ob = O + i0, *Wb = W ? W + i0 : NULL;
 #pragma omp simd reduction(+ : cost, evid)
         for (int i = 0; i < n; i++) {
-            double d0 = D[3 * i], d1 = D[3 * i + 1], d2 = D[3 * i + 2];
-            double ad0 = a00 * d0 + a01 * d1 + a02 * d2, ad1 = a10 * d0 + a11 * d1 + a12 * d2,
-                   ad2 = a20 * d0 + a21 * d1 + a22 * d2;
-            double dot = d0 * b0 + d1 * b1 + d2 * b2, nn = ad0 * d0 + ad1 * d1 + ad2 * d2;
-            double s = nn > 0.0 ? -dot / nn : 0.0;
-            s = s < 0.0 ? 0.0 : s;
-            double q0 = e0 + s * d0, q1 = e1 + s * d1, q2 = e2 + s * d2;
-            double c0 = b0 + s * ad0, c1 = b1 + s * ad1, c2 = b2 + s * ad2; /* g = A q* */
-            double a2 = q0 * c0 + q1 * c1 + q2 * c2;
-            double h = (1.0 - a2) * inv, ah = fabs(h);
+            Closest cl = ray_closest(kq, D[3 * i], D[3 * i + 1], D[3 * i + 2]);
+            double q0 = cl.q0, q1 = cl.q1, q2 = cl.q2, c0 = cl.g0, c1 = cl.g1, c2 = cl.g2;
+            double h = (1.0 - cl.a2) * inv, ah = fabs(h);
             double z = exp_nonpositive(-ah), s1 = 1.0 / (1.0 + z), s0 = z * s1;
             double sg = h >= 0 ? s1 : s0;
             double y = Yb[i], o = Ob[i], wt = Wb ? Wb[i] : 1.0, sw = Wb ? sqrt(wt) : 1.0;
@@ -800,22 +812,13 @@ static inline __attribute__((always_inline)) void estep_rows_body(Py_ssize_t row
                                                                   double *restrict sp, double *restrict lfo,
                                                                   Py_ssize_t stride_o, double widen)
 {
-    double a00 = A[0], a01 = A[1], a02 = A[2], a10 = A[3], a11 = A[4], a12 = A[5], a20 = A[6], a21 = A[7], a22 = A[8];
-    double e0 = e[0], e1 = e[1], e2 = e[2], b0 = Ae[0], b1 = Ae[1], b2 = Ae[2];
+    const Quadric kq = quadric(A, e, Ae);
     for (Py_ssize_t r = 0; r < rows; r++) {
         const double *D = dirs + 3 * r * cols;
         double *S = sp + r * cols, *L = lf + r * stride, *LO = lfo ? lfo + r * stride_o : NULL;
 #pragma omp simd
         for (Py_ssize_t c = 0; c < cols; c++) {
-            double d0 = D[3 * c], d1 = D[3 * c + 1], d2 = D[3 * c + 2];
-            double ad0 = a00 * d0 + a01 * d1 + a02 * d2, ad1 = a10 * d0 + a11 * d1 + a12 * d2,
-                   ad2 = a20 * d0 + a21 * d1 + a22 * d2;
-            double dot = d0 * b0 + d1 * b1 + d2 * b2, nn = ad0 * d0 + ad1 * d1 + ad2 * d2;
-            double s = nn > 0.0 ? -dot / nn : 0.0;
-            s = s < 0.0 ? 0.0 : s;
-            double q0 = e0 + s * d0, q1 = e1 + s * d1, q2 = e2 + s * d2;
-            double a2 = q0 * (b0 + s * ad0) + q1 * (b1 + s * ad1) + q2 * (b2 + s * ad2);
-            double h = (1.0 - a2) * inv, v = softplus_v(h);
+            double h = (1.0 - ray_closest(kq, D[3 * c], D[3 * c + 1], D[3 * c + 2]).a2) * inv, v = softplus_v(h);
             S[c] = v;
             L[c] -= v;
             if (LO) LO[c] -= softplus_v(widen * h);

@@ -459,15 +459,21 @@ def test_image_motion_is_the_pinhole_displacement_of_the_outline_points():
     assert tr._image_motion(a, b) == pytest.approx(expected, rel=1e-9)
 
 
-def test_one_camera_still_subject_converges_on_the_outline_test():
-    """With one camera, a body's depth is barely seen and creeps from iteration to
-    iteration after its outline has settled: the outline test stops the iterations."""
+def _still_subject():
+    """The lower body at a random pose seen by one camera, its clean masks, and tracker
+    options starting from that pose with nothing else on."""
     robot = _robot("lowerbody")
     cams = _cams(robot, 1)
     qt = robot.q_rest.copy()
     qt[7:] += np.radians(np.random.default_rng(3).uniform(-15, 15, robot.nq - 7))
-    masks = render(robot, qt, cams)
     kw = dict(q0=qt, mirror_hypothesis=False, swap_hypothesis=False, calibrate_sizes=False)
+    return robot, cams, qt, render(robot, qt, cams), kw
+
+
+def test_one_camera_still_subject_converges_on_the_outline_test():
+    """With one camera, a body's depth is barely seen and creeps from iteration to
+    iteration after its outline has settled: the outline test stops the iterations."""
+    robot, cams, qt, masks, kw = _still_subject()
     tr = Tracker(robot, cams, **kw)
     res = [tr.step(masks) for _ in range(4)]
     assert all(r.converged for r in res[1:])
@@ -480,12 +486,7 @@ def test_one_camera_still_subject_converges_on_the_outline_test():
 def test_depth_prior_holds_the_root_distance_along_the_ray():
     """The one-camera depth creep of a still subject (test above) is held by the depth
     spring; its gradient is that of k/2 (n . (p - anchor))^2 in the root's local velocity."""
-    robot = _robot("lowerbody")
-    cams = _cams(robot, 1)
-    qt = robot.q_rest.copy()
-    qt[7:] += np.radians(np.random.default_rng(3).uniform(-15, 15, robot.nq - 7))
-    masks = render(robot, qt, cams)
-    kw = dict(q0=qt, mirror_hypothesis=False, swap_hypothesis=False, calibrate_sizes=False)
+    robot, cams, qt, masks, kw = _still_subject()
     drift = {}
     for prior in (0.0, 1.0):
         tr = Tracker(robot, cams, depth_prior=prior, **kw)
