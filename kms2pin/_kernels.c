@@ -1262,6 +1262,112 @@ static PyObject *fit_body(PyObject *self, PyObject *const *args, Py_ssize_t narg
     return Py_BuildValue("(dd)", evidence, cost);
 }
 
+/* body_boxes(R (n,9), t (n,3), inner (n,3), Rwc (3,3), centre (3,), K (3,3), delta_px,
+ *            slack_px, width, height, box_out (n,4), delta_out (n,), status_out (n,))
+ * kms2pin.ecm.mstep.body_images' box arithmetic for an undistorted camera, per body:
+ * status 2: the box u0, v0, u1, v1 of its inner ellipsoid grown to h = -H_CUT plus
+ * slack_px (the image of the grown quadric, C* = P Q* P^T), and its edge width delta;
+ * 0: not in view; 1: straddling the camera plane, containing the camera or degenerate
+ * (the per-body path decides). */
+static PyObject *body_boxes(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 13) {
+        PyErr_SetString(PyExc_TypeError, "body_boxes takes 13 arguments");
+        return NULL;
+    }
+    double delta_px = PyFloat_AsDouble(args[6]), slack_px = PyFloat_AsDouble(args[7]);
+    Py_ssize_t W = PyLong_AsSsize_t(args[8]), H = PyLong_AsSsize_t(args[9]);
+    if (PyErr_Occurred()) return NULL;
+    Buf b[9];
+    memset(b, 0, sizeof(b));
+    int ok = get_buf(args[0], &b[0], 0, "R") == 0 && check_2d(&b[0], -1, 9, "R") == 0;
+    Py_ssize_t n = ok ? b[0].view.shape[0] : 0;
+    ok = ok && get_buf(args[1], &b[1], 0, "t") == 0 && check_2d(&b[1], n, 3, "t") == 0 &&
+         get_buf(args[2], &b[2], 0, "inner") == 0 && check_2d(&b[2], n, 3, "inner") == 0 &&
+         get_buf(args[3], &b[3], 0, "Rwc") == 0 && check_2d(&b[3], 3, 3, "Rwc") == 0 &&
+         vec_arg(args[4], &b[4], 3, 0, "centre") == 0 && get_buf(args[5], &b[5], 0, "K") == 0 &&
+         check_2d(&b[5], 3, 3, "K") == 0 && get_buf(args[10], &b[6], 1, "box") == 0 &&
+         check_2d(&b[6], n, 4, "box") == 0 && vec_arg(args[11], &b[7], n, 1, "delta") == 0 &&
+         vec_arg(args[12], &b[8], n, 1, "status") == 0;
+    if (!ok) {
+        release(b, 9);
+        return NULL;
+    }
+    double Rwc[3][3], K[3][3], c[3];
+    for (int r = 0; r < 3; r++) {
+        c[r] = V(b[4], r);
+        for (int k = 0; k < 3; k++) {
+            Rwc[r][k] = AT(b[3], r, k);
+            K[r][k] = AT(b[5], r, k);
+        }
+    }
+    double focal = sqrt(K[0][0] * K[1][1]);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double R[3][3], L0[3], mu[3] = {0.0, 0.0, 0.0};
+        for (int r = 0; r < 3; r++) {
+            L0[r] = AT(b[2], i, r);
+            for (int k = 0; k < 3; k++) R[r][k] = AT(b[0], i, 3 * r + k);
+        }
+        for (int k = 0; k < 3; k++) /* mu = (t - centre) @ Rwc: the centre in camera axes */
+            for (int j = 0; j < 3; j++) mu[k] += (AT(b[1], i, j) - c[j]) * Rwc[j][k];
+        int imax = L0[1] > L0[0] ? 1 : 0;
+        imax = L0[2] > L0[imax] ? 2 : imax;
+        double lmax = L0[imax], small2 = L0[(imax + 1) % 3] * L0[(imax + 2) % 3]; /* the two smallest */
+        V(b[7], i) = 0.0;
+        V(b[8], i) = 0.0;
+        if (!(mu[2] > 1e-9 * lmax)) continue; /* behind the camera */
+        double r_px = fmax(focal * sqrt(small2) / mu[2], 1e-6); /* a rough outline radius */
+        double delta = fmin(fmax(delta_px / r_px, 1e-6), 0.08);
+        double grow = sqrt(1.0 + 2.0 * H_CUT * delta) + slack_px / r_px, L[3], Rcb[3][3], sig[3][3], cb[3];
+        for (int k = 0; k < 3; k++) L[k] = L0[k] * grow;
+        for (int a = 0; a < 3; a++) /* R_cb = Rwc^T R */
+            for (int k = 0; k < 3; k++) Rcb[a][k] = Rwc[0][a] * R[0][k] + Rwc[1][a] * R[1][k] + Rwc[2][a] * R[2][k];
+        double inside = 0.0;
+        for (int k = 0; k < 3; k++) { /* the camera centre in the body frame, in semi-axes */
+            cb[k] = -(mu[0] * Rcb[0][k] + mu[1] * Rcb[1][k] + mu[2] * Rcb[2][k]);
+            inside += (cb[k] / L[k]) * (cb[k] / L[k]);
+        }
+        for (int a = 0; a < 3; a++)
+            for (int d = 0; d < 3; d++)
+                sig[a][d] = Rcb[a][0] * L[0] * L[0] * Rcb[d][0] + Rcb[a][1] * L[1] * L[1] * Rcb[d][1] +
+                            Rcb[a][2] * L[2] * L[2] * Rcb[d][2];
+        V(b[7], i) = delta;
+        V(b[8], i) = 1.0;
+        if (inside <= 1.0 || !(mu[2] - sqrt(sig[2][2]) > 0.0)) continue; /* straddling: per body */
+        double M[3][3], KM[3][3], D[3][3];
+        for (int a = 0; a < 3; a++)
+            for (int d = 0; d < 3; d++) M[a][d] = sig[a][d] - mu[a] * mu[d];
+        for (int a = 0; a < 3; a++)
+            for (int d = 0; d < 3; d++) KM[a][d] = K[a][0] * M[0][d] + K[a][1] * M[1][d] + K[a][2] * M[2][d];
+        for (int a = 0; a < 3; a++) /* the dual conic K M K^T */
+            for (int d = 0; d < 3; d++) D[a][d] = KM[a][0] * K[d][0] + KM[a][1] * K[d][1] + KM[a][2] * K[d][2];
+        double lo[2], hi[2];
+        int finite = 1;
+        for (int a = 0; a < 2; a++) {
+            double bb = D[a][2], cc = D[a][a], rt = sqrt(fmax(bb * bb - D[2][2] * cc, 0.0));
+            double k1 = (bb - rt) / D[2][2], k2 = (bb + rt) / D[2][2];
+            finite = finite && isfinite(k1) && isfinite(k2);
+            lo[a] = k1 < k2 ? k1 : k2;
+            hi[a] = k1 < k2 ? k2 : k1;
+        }
+        if (!finite) continue; /* degenerate: per body */
+        double u0 = fmax(ceil(lo[0]) - 1.0, 0.0), v0 = fmax(ceil(lo[1]) - 1.0, 0.0);
+        double u1 = fmin(floor(hi[0]) + 2.0, (double)W), v1 = fmin(floor(hi[1]) + 2.0, (double)H);
+        if (u1 <= u0 || v1 <= v0) {
+            V(b[8], i) = 0.0; /* out of the image */
+            continue;
+        }
+        AT(b[6], i, 0) = u0;
+        AT(b[6], i, 1) = v0;
+        AT(b[6], i, 2) = u1;
+        AT(b[6], i, 3) = v1;
+        V(b[8], i) = 2.0;
+    }
+    release(b, 9);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
@@ -1279,6 +1385,8 @@ static PyMethodDef methods[] = {
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,
      "pose_springs(J, X, T, K, S, A, g): the tracker's full-spring static update system"},
+    {"body_boxes", (PyCFunction)(void (*)(void))body_boxes, METH_FASTCALL,
+     "body_boxes(R, t, inner, Rwc, centre, K, delta_px, slack_px, width, height, box, delta, status)"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
     {NULL, NULL, 0, NULL},

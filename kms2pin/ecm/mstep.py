@@ -165,9 +165,35 @@ def body_images(
             body_image(camera, P, L, delta_px, slack_px=slack_px, max_pixels=max_pixels) for P, L in zip(poses, inners)
         ]
     inner = np.asarray(inners, dtype=float).reshape(n, 3)
+    status, boxes, delta = _boxes(camera, poses, inner, delta_px, slack_px)
+    rays = world_rays(camera)
+    out: list[BodyImage | None] = []
+    for i, (st, (u0, v0, u1, v1), dl) in enumerate(zip(status.tolist(), boxes.astype(int).tolist(), delta.tolist())):
+        if st == 0:  # behind the camera or out of the image
+            out.append(None)
+        elif st == 1:  # straddling, containing the camera or degenerate
+            out.append(body_image(camera, poses[i], inner[i], delta_px, slack_px=slack_px, max_pixels=max_pixels))
+        else:
+            stride = max(1, math.ceil(math.sqrt((v1 - v0) * (u1 - u0) / max_pixels)))
+            dirs = rays[v0:v1:stride, u0:u1:stride].reshape(-1, 3)
+            out.append(BodyImage(camera, BBox(u0, v0, u1, v1), stride, dirs, dl))
+    return out
+
+
+def _boxes(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, delta_px: float, slack_px: float):
+    """:func:`body_images`' per-body status (0: not in view, 1: per-body path, 2: box),
+    boxes (n, 4: u0, v0, u1, v1) and edge widths, vectorized over bodies (or in C)."""
+    n = len(poses)
     Rs = np.array([P.rotation for P in poses])
+    ts = np.array([P.translation for P in poses])
     Rwc, K = camera.world_R_camera, camera.K
-    mu = (np.array([P.translation for P in poses]) - camera.centre) @ Rwc  # camera-frame centres
+    H, W = camera.shape
+    if NATIVE:  # the lines below in one C call (kms2pin/_kernels.c)
+        boxes, delta, status = np.zeros((n, 4)), np.empty(n), np.empty(n)
+        _kernels.body_boxes(Rs.reshape(n, 9), ts, inner, Rwc, camera.centre, K, float(delta_px), float(slack_px), W, H,
+                            boxes, delta, status)
+        return status, boxes, delta
+    mu = (ts - camera.centre) @ Rwc  # camera-frame centres
     depth = mu[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         Ls = np.sort(inner, axis=1)
@@ -191,26 +217,16 @@ def body_images(
             lo.append(np.minimum(k1, k2))
             hi.append(np.maximum(k1, k2))
     finite = np.isfinite(lo[0]) & np.isfinite(lo[1]) & np.isfinite(hi[0]) & np.isfinite(hi[1])
-    rays = world_rays(camera)
-    H, W = camera.shape
-    out: list[BodyImage | None] = []
-    for i in range(n):
-        if not depth[i] > 1e-9 * float(inner[i].max()):
-            out.append(None)
-            continue
-        if not (front[i] and finite[i]):  # straddling, containing the camera or degenerate
-            out.append(body_image(camera, poses[i], inner[i], delta_px, slack_px=slack_px, max_pixels=max_pixels))
-            continue
-        u0, v0 = max(math.ceil(lo[0][i]) - 1, 0), max(math.ceil(lo[1][i]) - 1, 0)
-        u1, v1 = min(math.floor(hi[0][i]) + 2, W), min(math.floor(hi[1][i]) + 2, H)
-        if u1 <= u0 or v1 <= v0:
-            out.append(None)
-            continue
-        box = BBox(u0, v0, u1, v1)
-        stride = max(1, math.ceil(math.sqrt((v1 - v0) * (u1 - u0) / max_pixels)))
-        img = BodyImage(camera, box, stride, rays[v0:v1:stride, u0:u1:stride].reshape(-1, 3), float(delta[i]))
-        out.append(img)
-    return out
+    status = np.where(front & finite, 2.0, 1.0)
+    status[~(depth > 1e-9 * inner.max(axis=1))] = 0.0
+    boxes = np.zeros((n, 4))
+    ok = status == 2
+    boxes[ok, 0] = np.maximum(np.ceil(lo[0][ok]) - 1, 0)
+    boxes[ok, 1] = np.maximum(np.ceil(lo[1][ok]) - 1, 0)
+    boxes[ok, 2] = np.minimum(np.floor(hi[0][ok]) + 2, W)
+    boxes[ok, 3] = np.minimum(np.floor(hi[1][ok]) + 2, H)
+    status[ok & ((boxes[:, 2] <= boxes[:, 0]) | (boxes[:, 3] <= boxes[:, 1]))] = 0.0
+    return status, boxes, delta
 
 
 def _closest(d: np.ndarray, A: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

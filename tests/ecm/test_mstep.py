@@ -158,10 +158,16 @@ def test_native_and_numpy_body_fits_agree(monkeypatch, max_step):
     assert np.linalg.norm(a.pose.translation - pose.translation) > 1e-4  # it moved
 
 
-def test_body_images_match_body_image_one_by_one():
-    """The vectorized boxes equal body_image's, also for bodies straddling the camera
-    plane or out of view, and under lens distortion (which takes the per-body path)."""
+@pytest.mark.parametrize("native", [True, False], ids=["native", "numpy"])
+def test_body_images_match_body_image_one_by_one(native, monkeypatch):
+    """The vectorized boxes (NumPy, or the C kernel) equal body_image's, also for bodies
+    straddling the camera plane or out of view, and under lens distortion (which takes
+    the per-body path)."""
     from pathlib import Path
+
+    if native and mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    monkeypatch.setattr(mstep, "NATIVE", native)
 
     from kms2pin.robot import load
 
