@@ -737,7 +737,7 @@ class Tracker:
         hmax = float((np.einsum("nii->ni", Hf) * S**2).max())
         if hmax <= 0:
             return q
-        K = Hf.copy()
+        K = Hf  # a fresh array
         K[:, _I6, _I6] += self.stiffness_floor * hmax / S**2
         T = np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])  # (n, 7) [t, x, y, z, w]
         st = _structure(robot)
@@ -767,8 +767,11 @@ class Tracker:
                 g = KJ.T @ e.ravel()
             if self._root_dofs and self.depth_prior > 0 and self._anchor is not None:
                 self._depth_spring(A, g, data)
-            A[np.diag_indices(nv)] += 1e-9 * max(float(A.diagonal().max()), 1e-300)
-            dq = -np.linalg.solve(A, g)
+            shift = 1e-9 * max(float(A.diagonal().max()), 1e-300)
+            dq = np.empty(nv)
+            if not (native and _kernels.solve_shifted(A, g, shift, dq)):  # Cholesky in C, else LU
+                A[np.diag_indices(nv)] += shift
+                dq = -np.linalg.solve(A, g)
             q = pin.integrate(model, q, dq)
             if limited:  # projected Gauss-Newton: the spec's joint limits
                 q = robot.clamp(q)
