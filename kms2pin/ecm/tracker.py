@@ -451,6 +451,7 @@ class Tracker:
         self.tol = np.radians(tol_deg)
         self.tol_px = None if tol_px is None else float(tol_px)
         self.depth_prior = float(depth_prior)
+        self._scratch: dict[int, np.ndarray] = {}
         if not self.depth_prior >= 0.0:
             raise ValueError(f"depth_prior must be >= 0, not {depth_prior!r}")
         self._anchor: np.ndarray | None = None
@@ -655,25 +656,31 @@ class Tracker:
         robot = self.robot
         n = len(robot.bodies)
         poses = robot.body_poses(q)
+        native = _mstep.NATIVE
+        if native:  # every body's metric A = R diag(L^-2) R^T and centre, in one go
+            Rs = np.array([P.rotation for P in poses])
+            ts = np.array([P.translation for P in poses])
+            As = (Rs / np.asarray(self.inner)[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
         # sharp silhouettes, their union per camera, what the others explain
         images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
         views: list[list[BodyView]] = [[] for _ in range(n)]
         widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
         for c, (cam, mask) in enumerate(zip(self.cameras, masks)):
-            log_free = np.zeros(cam.shape)  # Σ_j log(1 - s_j)
+            log_free = self._zeroed(c, cam.shape)  # Σ_j log(1 - s_j)
             log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
             # the union needs every pixel: the E-step works at full resolution
-            for i, img in enumerate(body_images(cam, poses, self.inner, delta_px, max_pixels=10**9)):
+            body_imgs = body_images(cam, poses, self.inner, delta_px, max_pixels=10**9)
+            if native:
+                es = cam.centre - ts
+            for i, img in enumerate(body_imgs):
                 if img is None:
                     continue
-                if _mstep.NATIVE:  # the lines below, per pixel in C (kms2pin/_kernels.c)
-                    R = poses[i].rotation
+                if native:  # the lines below, per pixel in C (kms2pin/_kernels.c)
                     img.s = np.empty(len(img.dirs))  # softplus(h) = -log(1 - s)
                     b = img.box
                     _kernels.estep_body(
-                        img.dirs, (R / self.inner[i] ** 2) @ R.T, cam.centre - poses[i].translation,
-                        1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, log_free_o,
-                        widen,
+                        img.dirs, As[i], es[i], 1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0,
+                        b.u1 - b.u0, img.s, log_free_o, widen,
                     )
                     images[i][c] = img
                     continue
@@ -695,7 +702,7 @@ class Tracker:
                 img = images[i][c]
                 if img is None:
                     continue
-                if _mstep.NATIVE:
+                if native:
                     b = img.box
                     o, y = np.empty(len(img.s)), np.empty(len(img.s))
                     _kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
@@ -705,11 +712,25 @@ class Tracker:
                     y = mask[img.slices].ravel().astype(float)
                 wt = None if weight is None else weight[img.slices].ravel()
                 views[i].append(self._subsampled(img, y, o, wt))
+            for img in body_imgs:  # leave the scratch image zeroed for the next E-step
+                if img is not None:
+                    log_free[img.slices] = 0.0
         return poses, views
+
+    def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:
+        """Camera ``c``'s scratch image for the E-step's union, all zeros (kept between
+        E-steps and re-zeroed over the bodies' boxes only: a fresh 320x240 array a
+        camera and iteration cost more than the boxes' pixels)."""
+        buf = self._scratch.get(c)
+        if buf is None or buf.shape != shape:
+            buf = self._scratch[c] = np.zeros(shape)
+        return buf
 
     def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
         """The M-step's view of a full-resolution body image: every ``stride``-th row and
         column when the box holds more than ``max_pixels`` pixels."""
+        if len(y) <= self.max_pixels:
+            return BodyView(img, y, o, weight)
         rows, cols = img.shape
         stride = max(1, int(np.ceil(np.sqrt(rows * cols / self.max_pixels))))
         if stride == 1:
