@@ -712,19 +712,19 @@ class Tracker:
                     y = mask[img.slices].ravel().astype(float)
                 wt = None if weight is None else weight[img.slices].ravel()
                 views[i].append(self._subsampled(img, y, o, wt))
-            for img in body_imgs:  # leave the scratch image zeroed for the next E-step
+            for img in body_imgs:  # zeroed again for the next E-step
                 if img is not None:
                     log_free[img.slices] = 0.0
+            self._scratch[c] = log_free
         return poses, views
 
     def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:
-        """Camera ``c``'s scratch image for the E-step's union, all zeros (kept between
-        E-steps and re-zeroed over the bodies' boxes only: a fresh 320x240 array a
-        camera and iteration cost more than the boxes' pixels)."""
-        buf = self._scratch.get(c)
-        if buf is None or buf.shape != shape:
-            buf = self._scratch[c] = np.zeros(shape)
-        return buf
+        """Camera ``c``'s scratch image for the E-step's union, all zeros: the last
+        E-step's, which re-zeroed it over the bodies' boxes only (a fresh 320x240 array
+        a camera and iteration costs more than the boxes' pixels).  It is taken out
+        until then, so an E-step that raised leaves none behind."""
+        buf = self._scratch.pop(c, None)
+        return buf if buf is not None and buf.shape == shape else np.zeros(shape)
 
     def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
         """The M-step's view of a full-resolution body image: every ``stride``-th row and

@@ -515,3 +515,24 @@ def test_depth_prior_holds_the_root_distance_along_the_ray():
     eps = 1e-6
     fd = [(energy(eps * np.eye(nv)[a]) - energy(-eps * np.eye(nv)[a])) / (2 * eps) for a in range(nv)]
     np.testing.assert_allclose(g, fd, atol=1e-7)
+
+
+def test_e_step_scratch_image_leaves_nothing_behind():
+    """The E-step reuses a per-camera union image, re-zeroed over the bodies' boxes: an
+    E-step after others at different poses gives exactly a fresh tracker's views."""
+    robot = _robot("fullbody")
+    cams = _cams(robot)
+    rng = np.random.default_rng(12)
+    qs = [robot.random_configuration(rng, 40) for _ in range(3)]
+    masks = render(robot, qs[2], cams)
+    used = Tracker(robot, cams)
+    for q in qs[:2]:
+        used.e_step(q, masks, 1.0)
+    assert all(not buf.any() for buf in used._scratch.values()) and len(used._scratch) == len(cams)
+    _, views = used.e_step(qs[2], masks, 0.7)
+    _, fresh = Tracker(robot, cams).e_step(qs[2], masks, 0.7)
+    for va, vb in zip(views, fresh):
+        assert len(va) == len(vb)
+        for a, b in zip(va, vb):
+            np.testing.assert_array_equal(a.o, b.o)
+            np.testing.assert_array_equal(a.y, b.y)
