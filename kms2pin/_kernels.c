@@ -573,9 +573,10 @@ static inline double softplus_v(double h)
 }
 
 /* The vectorized loops are compiled three times, for AVX-512, AVX2 and baseline
- * x86-64; the loader picks the one the CPU runs (GCC function multi-versioning,
- * which needs glibc's ifunc; elsewhere the baseline build only). */
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__) && defined(__GLIBC__)
+ * x86-64; the loader picks the one the CPU runs (GCC function multi-versioning:
+ * the x86-64-v3/v4 names need GCC 11, the dispatch glibc's ifunc; elsewhere the
+ * baseline build only, so that the extension still compiles). */
+#if defined(__GNUC__) && __GNUC__ >= 11 && defined(__x86_64__) && !defined(__clang__) && defined(__GLIBC__)
 #define SIMD_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define SIMD_CLONES
