@@ -233,3 +233,24 @@ def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(mon
     for label in ("vector", "scalar"):
         for a, b in zip(out[label], out["numpy"]):
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())
+
+
+def test_box_kernel_rejects_malformed_arrays_instead_of_crashing():
+    if mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    k = mstep._kernels
+    n = 3
+    args = [np.zeros((n, 9)), np.zeros((n, 3)), np.ones((n, 3)), np.eye(3), np.zeros(3), np.eye(3), 0.7, 2.0, 320, 240]
+    outs = [np.zeros((n, 4)), np.zeros(n), np.zeros(n)]
+    k.body_boxes(*args, *outs)  # well formed: bodies at the camera centre are not in view
+    assert not outs[2].any()
+    bad_t = list(args)
+    bad_t[1] = np.zeros((n + 1, 3))
+    with pytest.raises(ValueError, match="wrong shape"):
+        k.body_boxes(*bad_t, *outs)
+    with pytest.raises(ValueError, match="wrong shape"):
+        k.body_boxes(*args, np.zeros((n, 3)), outs[1], outs[2])
+    with pytest.raises(TypeError, match="float64"):
+        k.body_boxes(args[0].astype(np.float32), *args[1:], *outs)
+    with pytest.raises(TypeError, match="13 arguments"):
+        k.body_boxes(*args)
