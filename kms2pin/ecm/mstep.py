@@ -153,10 +153,12 @@ def body_images(
     *,
     slack_px: float = 2.0,
     max_pixels: int = 6000,
+    arrays: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[BodyImage | None]:
     """:func:`body_image` of every body in one camera, the box arithmetic vectorized
     over bodies (same boxes and edge widths; distorted cameras and bodies that are
-    not entirely in front of the camera go through :func:`body_image`)."""
+    not entirely in front of the camera go through :func:`body_image`).  ``arrays``:
+    :func:`pose_arrays` of ``poses``, if the caller has them already."""
     n = len(poses)
     if n == 0:
         return []
@@ -165,7 +167,8 @@ def body_images(
             body_image(camera, P, L, delta_px, slack_px=slack_px, max_pixels=max_pixels) for P, L in zip(poses, inners)
         ]
     inner = np.asarray(inners, dtype=float).reshape(n, 3)
-    status, boxes, delta = _boxes(camera, poses, inner, delta_px, slack_px)
+    Rs, ts = pose_arrays(poses) if arrays is None else arrays
+    status, boxes, delta = _boxes(camera, Rs, ts, inner, delta_px, slack_px)
     rays = world_rays(camera)
     out: list[BodyImage | None] = []
     for i, (st, (u0, v0, u1, v1), dl) in enumerate(zip(status.tolist(), boxes.astype(int).tolist(), delta.tolist())):
@@ -180,12 +183,16 @@ def body_images(
     return out
 
 
-def _boxes(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, delta_px: float, slack_px: float):
+def pose_arrays(poses: Sequence[pin.SE3]) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations (n, 3, 3) and translations (n, 3) of ``poses``."""
+    return np.array([P.rotation for P in poses]), np.array([P.translation for P in poses])
+
+
+def _boxes(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, delta_px: float, slack_px: float):
     """:func:`body_images`' per-body status (0: not in view, 1: per-body path, 2: box),
-    boxes (n, 4: u0, v0, u1, v1) and edge widths, vectorized over bodies (or in C)."""
-    n = len(poses)
-    Rs = np.array([P.rotation for P in poses])
-    ts = np.array([P.translation for P in poses])
+    boxes (n, 4: u0, v0, u1, v1) and edge widths of the bodies at rotations ``Rs`` and
+    centres ``ts``, vectorized over bodies (or in C)."""
+    n = len(Rs)
     Rwc, K = camera.world_R_camera, camera.K
     H, W = camera.shape
     if NATIVE:  # the lines below in one C call (kms2pin/_kernels.c)

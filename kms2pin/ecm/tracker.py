@@ -42,7 +42,7 @@ from ..robot import Robot
 from ..virtual_work import _structure, body_frames, static_update
 from . import mstep as _mstep
 from .camera import Camera
-from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, fit_body_scale, world_rays
+from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, fit_body_scale, pose_arrays, world_rays
 from .projection import body_bbox
 
 
@@ -562,9 +562,7 @@ class Tracker:
     def _outline_points(self, q: np.ndarray) -> np.ndarray:
         """World points (n_bodies * 7, 3) that outline the bodies at ``q``: each inner
         ellipsoid's centre and the two ends of each of its axes."""
-        poses = self.robot.body_poses(q)
-        R = np.array([P.rotation for P in poses])  # (n, 3, 3)
-        t = np.array([P.translation for P in poses])  # (n, 3)
+        R, t = pose_arrays(self.robot.body_poses(q))  # (n, 3, 3), (n, 3)
         ends = R * np.asarray(self.inner)[:, None, :]  # (n, 3, 3): column k = axis k's half length
         pts = np.concatenate([t[:, None], t[:, None] + ends.transpose(0, 2, 1), t[:, None] - ends.transpose(0, 2, 1)], 1)
         return pts.reshape(-1, 3)
@@ -656,10 +654,9 @@ class Tracker:
         robot = self.robot
         n = len(robot.bodies)
         poses = robot.body_poses(q)
+        Rs, ts = pose_arrays(poses)
         native = _mstep.NATIVE
-        if native:  # every body's metric A = R diag(L^-2) R^T and centre, in one go
-            Rs = np.array([P.rotation for P in poses])
-            ts = np.array([P.translation for P in poses])
+        if native:  # every body's metric A = R diag(L^-2) R^T, in one go
             As = (Rs / np.asarray(self.inner)[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
         # sharp silhouettes, their union per camera, what the others explain
         images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
@@ -669,7 +666,7 @@ class Tracker:
             log_free = self._zeroed(c, cam.shape)  # Σ_j log(1 - s_j)
             log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
             # the union needs every pixel: the E-step works at full resolution
-            body_imgs = body_images(cam, poses, self.inner, delta_px, max_pixels=10**9)
+            body_imgs = body_images(cam, poses, self.inner, delta_px, max_pixels=10**9, arrays=(Rs, ts))
             if native:
                 es = cam.centre - ts
             for i, img in enumerate(body_imgs):
