@@ -67,12 +67,17 @@ CASES = {
     "lowerbody-limits-2cam": ("anatomical/lowerbody", "walk", 2),
     "fullbody-limits-1cam": ("anatomical/fullbody", "walk", 1),
     "fullbody-limits-2cam": ("anatomical/fullbody", "walk", 2),
+    # one camera, with limits and the upright prior (Tracker(upright=...)): the walkers'
+    # pelvis keeps its starting tilt, and turns happen about the vertical
+    "lowerbody-upright-1cam": ("anatomical/lowerbody", "walk", 1, {"upright": 0.1}),
+    "fullbody-upright-1cam": ("anatomical/fullbody", "walk", 1, {"upright": 0.1}),
 }
 
 
 def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     """Track one case; print its row and return (centre error %, revolute RMSE deg, frames/s)."""
-    spec, motion_name, ncam = CASES[name]
+    spec, motion_name, ncam, *case_kw = CASES[name]
+    tracker_kw = {**(case_kw[0] if case_kw else {}), **tracker_kw}
     robot = load(SPECS / f"{spec}.kms", root="free")
     rng = np.random.default_rng(seed)
     motion = make_motion(robot, motion_name, frames, rng)

@@ -59,7 +59,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
     runs = {
         "default": [],
-        "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02"],
+        "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02",
+                "--upright", "0.1", "--up", "0", "0", "2"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -69,11 +70,11 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
             scales = z["body_scales"]
         if name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
-            assert meta["depth_prior"] == 0.0
+            assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
             assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
-            assert meta["depth_prior"] == 0.02
+            assert meta["depth_prior"] == 0.02 and meta["upright"] == 0.1 and meta["up"] == [0.0, 0.0, 1.0]
             np.testing.assert_array_equal(scales, 1.0)
 
 
@@ -154,4 +155,17 @@ def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path,
         main(["track", str(SPECS / "lowerbody.kms"), "--masks", str(tmp_path), "--depth-prior", value, "-o", str(out)])
     assert exc.value.code == 2
     assert "--depth-prior" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"]])
+def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, flags):
+    out = tmp_path / "out"
+    argv = ["track", str(SPECS / "lowerbody.kms"), "--masks", str(tmp_path), *flags, "-o", str(out)]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own type check
+        code = exc.code
+    assert code == 2
+    assert flags[0] in capsys.readouterr().err
     assert not out.exists()

@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..cli import UsageError
 from ..ecm.camera import Camera
 from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_conic
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -77,6 +78,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a spring holding the root's distance along each camera's ray at each frame's "
                         "prediction, K times the root's stiffness (default 0: off; with one camera 0.02 "
                         "keeps a lost track from sliding towards the camera)")
+    p.add_argument("--upright", type=_non_negative, default=0.0, metavar="K",
+                   help="a spring holding the root's tilt from the vertical (--up) at the first frame's, "
+                        "K times the root's rotational stiffness; it turns freely about the vertical "
+                        "(default 0: off; 0.1 for people walking, seen by one camera)")
+    p.add_argument("--up", type=float, nargs=3, default=(0.0, 1.0, 0.0), metavar=("X", "Y", "Z"),
+                   help="the world's vertical for --upright (default 0 1 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
@@ -89,6 +96,13 @@ def _non_negative(text: str) -> float:
     if not value >= 0.0:  # also rejects nan
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
     return value
+
+
+def _up_vector(xyz) -> np.ndarray:
+    up = np.asarray(xyz, dtype=float)
+    if not (np.all(np.isfinite(up)) and np.linalg.norm(up) > 0.0):
+        raise UsageError(f"--up: expected a finite, non-zero vector, got {' '.join(map(str, xyz))}")
+    return up
 
 
 def _frames_in(folder: Path) -> dict[int, Path]:
@@ -212,6 +226,7 @@ def _auto_init(robot: Robot, cameras, frames_masks, start: int = 0):
 
 
 def run(args: argparse.Namespace) -> int:
+    up = _up_vector(args.up)
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
     out = Path(args.output)
@@ -272,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None,
-        depth_prior=args.depth_prior,
+        depth_prior=args.depth_prior, upright=args.upright, up=up,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -282,6 +297,7 @@ def run(args: argparse.Namespace) -> int:
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
             "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
             "swap_hypothesis": tracker.swap_hypothesis, "depth_prior": tracker.depth_prior,
+            "upright": tracker.upright, "up": tracker.up.tolist(),
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]
