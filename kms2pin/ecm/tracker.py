@@ -509,6 +509,9 @@ class Tracker:
         self._root_dofs = 3 if robot.root == "free" else 0
         # the root's own axis that is vertical at q0 (root frame)
         self._up_root = pin.XYZQUATToSE3(self.q[:7]).rotation.T @ self.up if self._root_dofs else None
+        if self._root_dofs:  # constants of the upright spring (_upright_spring)
+            self._up_projector = np.eye(3) - np.outer(self._up_root, self._up_root)
+            self._up_skew = pin.skew(self.up)
         self._sagittal = _sagittal_mirror(robot) if robot.root == "free" else None
         if mirror_hypothesis is None:
             mirror_hypothesis = len(self.cameras) == 1 and self._sagittal is not None
@@ -846,13 +849,12 @@ class Tracker:
         energy ½ k |R u - up|² with R the root's rotation and u its axis that was vertical
         at ``q0`` (zero for any turn about ``up``); k is ``upright`` times the root
         rotation's mean stiffness.  With ω the root's local angular velocity,
-        d(R u)/dω = -R [u]x."""
+        J = d(R u)/dω = -R [u]x = -[R u]x R, so JᵀJ = I - u uᵀ (|u| = 1) and the gradient
+        Jᵀ(R u - up) = Rᵀ (up x R u)."""
         R = data.oMi[1].rotation
-        u = self._up_root
-        jac = -R @ pin.skew(u)
-        k = self.upright * float(np.trace(A[3:6, 3:6])) / 3.0
-        A[3:6, 3:6] += k * (jac.T @ jac)
-        g[3:6] += k * (jac.T @ (R @ u - self.up))
+        k = self.upright * float(A[3, 3] + A[4, 4] + A[5, 5]) / 3.0
+        A[3:6, 3:6] += k * self._up_projector
+        g[3:6] += k * (R.T @ (self._up_skew @ (R @ self._up_root)))
 
     def step(self, masks, source: str = "frame") -> FrameResult:
         """Track one frame: ``masks`` is one (H, W) mask per camera (bool or 0/1).
