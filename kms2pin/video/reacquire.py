@@ -123,11 +123,9 @@ class Reacquisition:
         found = initial_pose_details(self.robot, self.cameras, masks, q_start=self.last_good_q)
         if found.fit <= result.fit:
             return tracker, result, None
-        # the same subject: keep the body sizes measured at the start
-        tracker = Tracker(
-            self.robot, self.cameras, q0=found.q, scales=tracker.scales, calibrate_sizes=False,
-            mirror_hypothesis=tracker.mirror_hypothesis, swap_hypothesis=tracker.swap_hypothesis,
-        )
+        # the same subject, tracked the same way: its options, the body sizes measured at
+        # the start and its upright axis are kept
+        tracker.restart(found.q)
         r = tracker.step(masks, source=source)
         result = FrameResult(r.q, r.body_poses, r.iterations, r.fit, r.converged, r.flags + ("reinitialized",),
                              r.timings)
