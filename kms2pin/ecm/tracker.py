@@ -467,6 +467,7 @@ class Tracker:
         self.tol_px = None if tol_px is None else float(tol_px)
         self.depth_prior = float(depth_prior)
         self._scratch: dict[int, np.ndarray] = {}
+        self._fk: tuple | None = None  # _body_poses' last configuration and poses
         if not self.depth_prior >= 0.0:
             raise ValueError(f"depth_prior must be >= 0, not {depth_prior!r}")
         self._anchor: np.ndarray | None = None
@@ -572,11 +573,11 @@ class Tracker:
         return out
 
     def _iou(self, q: np.ndarray, masks: Sequence[np.ndarray]) -> float:
-        poses = self.robot.body_poses(q)
+        poses, Rs, ts = self._body_poses(q)
         inter = union = 0
         for cam, mask in zip(self.cameras, masks):
             model = np.zeros(cam.shape, dtype=bool)
-            images = body_images(cam, poses, self.inner, 0.5, slack_px=0.0, max_pixels=10**9)
+            images = body_images(cam, poses, self.inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=(Rs, ts))
             for P, li, img in zip(poses, self.inner, images):
                 if img is None:
                     continue
@@ -587,20 +588,35 @@ class Tracker:
         return inter / union if union else 1.0
 
     # ------------------------------------------------------------------ ECM
+    def _body_poses(self, q: np.ndarray):
+        """The body poses at ``q`` and their :func:`pose_arrays`, kept for the last ``q``
+        asked for: the outline test after an iteration, the next iteration's E-step and
+        the fit of the frame's result all want the same ones."""
+        key = np.asarray(q, dtype=float).tobytes()
+        if self._fk is None or self._fk[0] != key:
+            poses = self.robot.body_poses(q)
+            self._fk = (key, poses, *pose_arrays(poses))
+        return self._fk[1:]
+
     def _outline_points(self, q: np.ndarray) -> np.ndarray:
         """World points (n_bodies * 7, 3) that outline the bodies at ``q``: each inner
         ellipsoid's centre and the two ends of each of its axes."""
-        R, t = pose_arrays(self.robot.body_poses(q))  # (n, 3, 3), (n, 3)
+        _, R, t = self._body_poses(q)  # (n, 3, 3), (n, 3)
         ends = R * np.asarray(self.inner)[:, None, :]  # (n, 3, 3): column k = axis k's half length
         pts = np.concatenate([t[:, None], t[:, None] + ends.transpose(0, 2, 1), t[:, None] - ends.transpose(0, 2, 1)], 1)
         return pts.reshape(-1, 3)
 
-    def _image_motion(self, a: np.ndarray, b: np.ndarray) -> float:
+    def _outline_pixels(self, q: np.ndarray) -> list[np.ndarray]:
+        """:meth:`_outline_points` projected into every camera (NaN behind it)."""
+        pts = self._outline_points(q)
+        return [cam.project(pts) for cam in self.cameras]
+
+    def _image_motion(self, a: list[np.ndarray], b: list[np.ndarray]) -> float:
         """Largest image displacement (pixels, over the cameras) between two sets of
-        :meth:`_outline_points`; points behind a camera are left out."""
+        :meth:`_outline_pixels`; points behind a camera are left out."""
         moved = 0.0
-        for cam in self.cameras:
-            d = np.linalg.norm(cam.project(a) - cam.project(b), axis=1)
+        for pa, pb in zip(a, b):
+            d = np.linalg.norm(pa - pb, axis=1)
             d = d[np.isfinite(d)]
             if len(d):
                 moved = max(moved, float(d.max()))
@@ -681,8 +697,7 @@ class Tracker:
         explain, inlier weights).  Returns the body poses and the views."""
         robot = self.robot
         n = len(robot.bodies)
-        poses = robot.body_poses(q)
-        Rs, ts = pose_arrays(poses)
+        poses, Rs, ts = self._body_poses(q)
         native = _mstep.NATIVE
         if native:  # every body's metric A = R diag(L^-2) R^T, in one go
             As = (Rs / np.asarray(self.inner)[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
@@ -916,12 +931,12 @@ class Tracker:
         self._anchor = q[:3].copy() if self._root_dofs else None
         delta = self.delta_start
         limit = self.max_iterations if max_iterations is None else max(1, int(max_iterations))
-        pts = self._outline_points(q) if self.tol_px is not None else None
+        pts = self._outline_pixels(q) if self.tol_px is not None else None
         for it in range(1, limit + 1):
             q_new = self.iterate(q, masks, delta, timings)
             settled = self._change(q, q_new) < self.tol
             if pts is not None:
-                pts_new = self._outline_points(q_new)
+                pts_new = self._outline_pixels(q_new)
                 settled = settled or self._image_motion(pts, pts_new) < self.tol_px
                 pts = pts_new
             q = q_new

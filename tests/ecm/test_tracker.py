@@ -456,7 +456,11 @@ def test_image_motion_is_the_pinhole_displacement_of_the_outline_points():
     # pinhole: a point at depth z moves f * dx / z pixels
     z = (a - cam.centre) @ cam.world_R_camera[:, 2]
     expected = cam.K[0, 0] * 0.05 / z.min()
-    assert tr._image_motion(a, b) == pytest.approx(expected, rel=1e-9)
+    assert tr._image_motion(tr._outline_pixels(q), tr._outline_pixels(q2)) == pytest.approx(expected, rel=1e-9)
+    # the poses kept for the last configuration follow it, also when it is changed in place
+    np.testing.assert_array_equal(tr._outline_points(q), a)
+    q[0] += 0.05
+    np.testing.assert_array_equal(tr._outline_points(q), b)
 
 
 def _still_subject():
