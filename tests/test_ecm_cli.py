@@ -169,3 +169,12 @@ def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_pat
     assert code == 2
     assert flags[0] in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_upright_with_a_fixed_root_says_it_does_nothing(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=2, extra=("--root", "spec"))
+    out = tmp_path / "out"
+    argv = ["track", LOWER, "--masks", str(masks), "--root", "spec", "--no-progress", "--no-video", "--upright", "0.1"]
+    assert main([*argv, "-o", str(out)]) == 0
+    assert "with --root spec they do nothing" in capsys.readouterr().err
+    assert json.loads((out / "meta.json").read_text())["root"] == "spec"

@@ -229,6 +229,9 @@ def run(args: argparse.Namespace) -> int:
     up = _up_vector(args.up)
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
+    if robot.root != "free" and (args.upright > 0 or args.depth_prior > 0):
+        print("note: --upright and --depth-prior act on a free root; with --root spec they do nothing",
+              file=sys.stderr)
     out = Path(args.output)
     video_mode = bool(args.video)
     if video_mode:
