@@ -466,11 +466,8 @@ class Tracker:
         self.tol = np.radians(tol_deg)
         self.tol_px = None if tol_px is None else float(tol_px)
         self.depth_prior = float(depth_prior)
-        self._scratch: dict[int, np.ndarray] = {}
-        self._fk: tuple | None = None  # _body_poses' last configuration and poses
         if not self.depth_prior >= 0.0:
             raise ValueError(f"depth_prior must be >= 0, not {depth_prior!r}")
-        self._anchor: np.ndarray | None = None
         self.upright = float(upright)
         if not self.upright >= 0.0:
             raise ValueError(f"upright must be >= 0, not {upright!r}")
@@ -479,6 +476,9 @@ class Tracker:
         if not (np.isfinite(norm) and norm > 0.0):
             raise ValueError(f"up must be a non-zero 3-vector, not {up.tolist()!r}")
         self.up = up / norm
+        self._scratch: dict[int, np.ndarray] = {}  # per camera: the E-step's union image (_zeroed)
+        self._fk: tuple | None = None  # _body_poses' last configuration and poses
+        self._anchor: np.ndarray | None = None  # the root's position at the frame's start (depth_prior)
         self.prediction = prediction
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)
         self.m_iterations, self.damping = m_iterations, damping
@@ -504,11 +504,8 @@ class Tracker:
             self.outer = [lo * f for lo, f in zip(self.outer, sc)]
         self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
         self._calibrated = False
-        self.q = np.array(robot.q_rest if q0 is None else q0, dtype=float)
-        if self.q.shape != (robot.nq,):
-            raise InputDataError(f"initial pose has {self.q.size} values but '{robot.system.name}' needs {robot.nq}")
-        self._prev: np.ndarray | None = None
-        self.frame = 0
+        self._alts: dict[str, list] = {}  # alternative hypotheses: kind -> [q, previous q, score, fit]
+        self._reset(robot.q_rest if q0 is None else q0, "initial pose")
         self._root_dofs = 3 if robot.root == "free" else 0
         # the root's own axis that is vertical at q0 (root frame)
         self._up_root = pin.XYZQUATToSE3(self.q[:7]).rotation.T @ self.up if self._root_dofs else None
@@ -536,8 +533,6 @@ class Tracker:
         self.hypothesis_iterations = (
             self.max_iterations if hypothesis_iterations is None else max(1, int(hypothesis_iterations))
         )
-        self._alts: dict[str, list] = {}  # alternative hypotheses: kind -> [q, previous q, score, fit]
-        self._score = 0.0
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -1053,11 +1048,15 @@ class Tracker:
         """Go on from ``q0`` as from a first frame's pose (no velocity, no alternative
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""
+        self._reset(q0, "restart pose")
+
+    def _reset(self, q0, what: str) -> None:
+        """Start from ``q0``: no velocity, no alternative hypotheses, frame 0."""
         q0 = np.array(q0, dtype=float)
         if q0.shape != (self.robot.nq,):
-            raise InputDataError(f"restart pose has {q0.size} values but '{self.robot.system.name}' needs {self.robot.nq}")
+            raise InputDataError(f"{what} has {q0.size} values but '{self.robot.system.name}' needs {self.robot.nq}")
         self.q = q0
-        self._prev = None
+        self._prev: np.ndarray | None = None
         self._alts.clear()
         self._score = 0.0
         self.frame = 0
