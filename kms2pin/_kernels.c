@@ -780,10 +780,12 @@ static int image_arg(PyObject *obj, Buf *b, int writable, const char *name, int 
     int flags = PyBUF_STRIDES | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
     if (PyObject_GetBuffer(obj, &b->view, flags) < 0) return -1;
     b->held = 1;
-    int fmt_ok = bytes ? (b->view.itemsize == 1 && b->view.format && (!strcmp(b->view.format, "?") || !strcmp(b->view.format, "B")))
-                       : (b->view.itemsize == 8 && b->view.format && !strcmp(b->view.format, "d"));
+    int is_bytes = b->view.itemsize == 1 && b->view.format && (!strcmp(b->view.format, "?") || !strcmp(b->view.format, "B"));
+    int is_double = b->view.itemsize == 8 && b->view.format && !strcmp(b->view.format, "d");
+    int fmt_ok = bytes == 2 ? (is_bytes || is_double) : bytes ? is_bytes : is_double;
     if (!fmt_ok || b->view.ndim != 2) {
-        PyErr_Format(PyExc_TypeError, "%s must be a 2-D %s image", name, bytes ? "bool/uint8" : "float64");
+        PyErr_Format(PyExc_TypeError, "%s must be a 2-D %s image", name,
+                     bytes == 2 ? "bool/uint8/float64" : bytes ? "bool/uint8" : "float64");
         return -1;
     }
     return 0;
@@ -857,6 +859,24 @@ static void estep_view_rows(Py_ssize_t rows, Py_ssize_t cols, const double *rest
     }
 }
 
+/* estep_view_rows with a float64 mask (area fractions of a binned mask): y = mask. */
+SIMD_CLONES
+static void estep_view_rows_f(Py_ssize_t rows, Py_ssize_t cols, const double *restrict lf, Py_ssize_t stride,
+                              const double *restrict mask, Py_ssize_t mstride, const double *restrict sp,
+                              double *restrict o, double *restrict y)
+{
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        const double *L = lf + r * stride, *S = sp + r * cols, *M = mask + r * mstride;
+        double *Or = o + r * cols, *Yr = y + r * cols;
+#pragma omp simd
+        for (Py_ssize_t c = 0; c < cols; c++) {
+            double others = L[c] + S[c];
+            Or[c] = one_minus_exp(others < 0.0 ? others : 0.0);
+            Yr[c] = M[c];
+        }
+    }
+}
+
 /* estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp_out, log_free_o|None, widen)
  * h = (1 - a^2) inv on the box; sp = softplus(h) = -log(1 - s); log_free[box] -= sp;
  * with log_free_o also log_free_o[box] -= softplus(widen h). */
@@ -906,7 +926,8 @@ static PyObject *estep_body(PyObject *self, PyObject *const *args, Py_ssize_t na
 }
 
 /* estep_view(log_free, mask, v0, u0, rows, cols, sp, o_out, y_out):
- * o = 1 - exp(min(log_free[box] + sp, 0)), y = mask[box] (0/1); sp from estep_body. */
+ * o = 1 - exp(min(log_free[box] + sp, 0)), y = mask[box] (bool/uint8: 0/1; float64:
+ * the value, e.g. a binned mask's area fraction); sp from estep_body. */
 static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -918,14 +939,23 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
     memset(b, 0, sizeof(b));
     Py_ssize_t box[4];
     if (vec_arg(args[6], &b[2], -1, 0, "sp") < 0 || image_arg(args[0], &b[0], 0, "log_free", 0) < 0 ||
-        image_arg(args[1], &b[1], 0, "mask", 1) < 0 || box_arg(args + 2, &b[0], b[2].view.shape[0], box) < 0 ||
+        image_arg(args[1], &b[1], 0, "mask", 2) < 0 || box_arg(args + 2, &b[0], b[2].view.shape[0], box) < 0 ||
         box_arg(args + 2, &b[1], b[2].view.shape[0], box) < 0 ||
         vec_arg(args[7], &b[3], b[2].view.shape[0], 1, "o") < 0 ||
         vec_arg(args[8], &b[4], b[2].view.shape[0], 1, "y") < 0) {
         release(b, 5);
         return NULL;
     }
-    if (contiguous_1d(&b[2]) && contiguous_1d(&b[3]) && contiguous_1d(&b[4]) && b[0].view.strides[1] == 8 &&
+    int fmask = b[1].view.itemsize == 8;
+    if (fmask && contiguous_1d(&b[2]) && contiguous_1d(&b[3]) && contiguous_1d(&b[4]) && b[0].view.strides[1] == 8 &&
+        b[0].view.strides[0] % 8 == 0 && b[1].view.strides[1] == 8 && b[1].view.strides[0] % 8 == 0) {
+        estep_view_rows_f(box[2], box[3], &AT(b[0], box[0], box[1]), b[0].view.strides[0] / 8, &AT(b[1], box[0], box[1]),
+                          b[1].view.strides[0] / 8, (const double *)b[2].view.buf, (double *)b[3].view.buf,
+                          (double *)b[4].view.buf);
+        release(b, 5);
+        Py_RETURN_NONE;
+    }
+    if (!fmask && contiguous_1d(&b[2]) && contiguous_1d(&b[3]) && contiguous_1d(&b[4]) && b[0].view.strides[1] == 8 &&
         b[0].view.strides[0] % 8 == 0 && b[1].view.strides[1] == 1) {
         const unsigned char *m = (const unsigned char *)b[1].view.buf + box[0] * b[1].view.strides[0] + box[1];
         estep_view_rows(box[2], box[3], &AT(b[0], box[0], box[1]), b[0].view.strides[0] / 8, m, b[1].view.strides[0],
@@ -938,11 +968,108 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
         for (Py_ssize_t c = 0; c < box[3]; c++, i++) {
             double others = AT(b[0], box[0] + r, box[1] + c) + V(b[2], i);
             V(b[3], i) = -expm1(others < 0 ? others : 0.0);
-            const unsigned char *m =
-                (const unsigned char *)b[1].view.buf + (box[0] + r) * b[1].view.strides[0] + (box[1] + c) * b[1].view.strides[1];
-            V(b[4], i) = *m ? 1.0 : 0.0;
+            const char *m = (const char *)b[1].view.buf + (box[0] + r) * b[1].view.strides[0] + (box[1] + c) * b[1].view.strides[1];
+            V(b[4], i) = fmask ? *(const double *)m : (*(const unsigned char *)m ? 1.0 : 0.0);
         }
     release(b, 5);
+    Py_RETURN_NONE;
+}
+
+/* estep_camera(rays (H,W,3), A (n,9), e (n,3), inv (n,), box (n,4), offset (n+1,), mask,
+ *              log_free (H,W), dirs_out (N,3), sp_out (N,), o_out (N,), y_out (N,))
+ * The E-step of one camera (kms2pin.ecm.tracker.Tracker.e_step) in one call, for bodies
+ * that all have boxes (u0, v0, u1, v1; an empty box for a body out of view): body i's
+ * pixels are rows offset[i]..offset[i+1] of the outputs, its box row by row.  Per body,
+ * its rays are copied out of the ray grid and estep_body's loop runs; then per body
+ * estep_view's; then log_free, which must be zero on entry, is zeroed again over the
+ * boxes.  The same arithmetic in the same order as those two functions. */
+static PyObject *estep_camera(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "estep_camera takes 12 arguments");
+        return NULL;
+    }
+    Buf b[12];
+    memset(b, 0, sizeof(b));
+    int ok = get_buf(args[0], &b[0], 0, "rays") == 0 && b[0].view.ndim == 3 && b[0].view.shape[2] == 3 &&
+             PyBuffer_IsContiguous(&b[0].view, 'C');
+    if (ok) ok = get_buf(args[1], &b[1], 0, "A") == 0 && check_2d(&b[1], -1, 9, "A") == 0;
+    Py_ssize_t n = ok ? b[1].view.shape[0] : 0, H = ok ? b[0].view.shape[0] : 0, W = ok ? b[0].view.shape[1] : 0;
+    ok = ok && get_buf(args[2], &b[2], 0, "e") == 0 && check_2d(&b[2], n, 3, "e") == 0 &&
+         vec_arg(args[3], &b[3], n, 0, "inv") == 0 && get_buf(args[4], &b[4], 0, "box") == 0 &&
+         check_2d(&b[4], n, 4, "box") == 0 && vec_arg(args[5], &b[5], n + 1, 0, "offset") == 0 &&
+         image_arg(args[6], &b[6], 0, "mask", 2) == 0 && image_arg(args[7], &b[7], 1, "log_free", 0) == 0;
+    Py_ssize_t N = ok ? (Py_ssize_t)V(b[5], n) : 0;
+    ok = ok && get_buf(args[8], &b[8], 1, "dirs") == 0 && check_2d(&b[8], N, 3, "dirs") == 0 &&
+         contiguous_n3(&b[8]) && vec_arg(args[9], &b[9], N, 1, "sp") == 0 && contiguous_1d(&b[9]) &&
+         vec_arg(args[10], &b[10], N, 1, "o") == 0 && contiguous_1d(&b[10]) &&
+         vec_arg(args[11], &b[11], N, 1, "y") == 0 && contiguous_1d(&b[11]);
+    if (ok && (b[6].view.shape[0] != H || b[6].view.shape[1] != W || b[7].view.shape[0] != H ||
+               b[7].view.shape[1] != W || b[7].view.strides[1] != 8 || b[7].view.strides[0] % 8 != 0 ||
+               b[6].view.strides[1] != b[6].view.itemsize || b[6].view.strides[0] % b[6].view.itemsize != 0)) {
+        PyErr_SetString(PyExc_ValueError, "mask and log_free must be row-contiguous images of the ray grid's size");
+        ok = 0;
+    }
+    Py_ssize_t *bx = ok ? (Py_ssize_t *)PyMem_Malloc(sizeof(Py_ssize_t) * 5 * (size_t)(n > 0 ? n : 1)) : NULL;
+    if (ok && bx == NULL) {
+        PyErr_NoMemory();
+        ok = 0;
+    }
+    for (Py_ssize_t i = 0; ok && i < n; i++) { /* u0, v0, rows, cols, offset: checked */
+        double u0 = AT(b[4], i, 0), v0 = AT(b[4], i, 1), u1 = AT(b[4], i, 2), v1 = AT(b[4], i, 3);
+        Py_ssize_t off = (Py_ssize_t)V(b[5], i), end = (Py_ssize_t)V(b[5], i + 1);
+        bx[5 * i] = (Py_ssize_t)u0;
+        bx[5 * i + 1] = (Py_ssize_t)v0;
+        bx[5 * i + 2] = (Py_ssize_t)(v1 - v0);
+        bx[5 * i + 3] = (Py_ssize_t)(u1 - u0);
+        bx[5 * i + 4] = off;
+        if (u0 < 0 || v0 < 0 || u1 > W || v1 > H || bx[5 * i + 2] < 0 || bx[5 * i + 3] < 0 || off < 0 ||
+            end - off != bx[5 * i + 2] * bx[5 * i + 3] || end > N) {
+            PyErr_SetString(PyExc_ValueError, "a box does not fit the image or its offsets");
+            ok = 0;
+        }
+    }
+    if (!ok) {
+        PyMem_Free(bx);
+        release(b, 12);
+        return NULL;
+    }
+    const double *rays = (const double *)b[0].view.buf;
+    double *lf = (double *)b[7].view.buf, *dirs = (double *)b[8].view.buf, *sp = (double *)b[9].view.buf;
+    double *o = (double *)b[10].view.buf, *y = (double *)b[11].view.buf;
+    Py_ssize_t ls = b[7].view.strides[0] / 8, ms = b[6].view.strides[0] / b[6].view.itemsize;
+    int fmask = b[6].view.itemsize == 8;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t u0 = bx[5 * i], v0 = bx[5 * i + 1], rows = bx[5 * i + 2], cols = bx[5 * i + 3], off = bx[5 * i + 4];
+        if (rows == 0 || cols == 0) continue;
+        double *D = dirs + 3 * off;
+        for (Py_ssize_t r = 0; r < rows; r++)
+            memcpy(D + 3 * r * cols, rays + 3 * ((v0 + r) * W + u0), sizeof(double) * 3 * (size_t)cols);
+        double A[9], e[3], Ae[3];
+        for (int k = 0; k < 9; k++) A[k] = AT(b[1], i, k);
+        for (int k = 0; k < 3; k++) e[k] = AT(b[2], i, k);
+        for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+        estep_rows(rows, cols, D, A, e, Ae, V(b[3], i), lf + v0 * ls + u0, ls, sp + off, NULL, 0, 1.0);
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t u0 = bx[5 * i], v0 = bx[5 * i + 1], rows = bx[5 * i + 2], cols = bx[5 * i + 3], off = bx[5 * i + 4];
+        if (rows == 0 || cols == 0) continue;
+        if (fmask)
+            estep_view_rows_f(rows, cols, lf + v0 * ls + u0, ls, (const double *)b[6].view.buf + v0 * ms + u0, ms,
+                              sp + off, o + off, y + off);
+        else
+            estep_view_rows(rows, cols, lf + v0 * ls + u0, ls, (const unsigned char *)b[6].view.buf + v0 * ms + u0, ms,
+                            sp + off, o + off, y + off);
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t u0 = bx[5 * i], v0 = bx[5 * i + 1], rows = bx[5 * i + 2], cols = bx[5 * i + 3];
+        for (Py_ssize_t r = 0; r < rows; r++) memset(lf + (v0 + r) * ls + u0, 0, sizeof(double) * (size_t)cols);
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(bx);
+    release(b, 12);
     Py_RETURN_NONE;
 }
 
@@ -1382,6 +1509,8 @@ static PyMethodDef methods[] = {
      "estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp, log_free_o, widen)"},
     {"estep_view", (PyCFunction)(void (*)(void))estep_view, METH_FASTCALL,
      "estep_view(log_free, mask, v0, u0, rows, cols, sp, o, y)"},
+    {"estep_camera", (PyCFunction)(void (*)(void))estep_camera, METH_FASTCALL,
+     "estep_camera(rays, A, e, inv, box, offset, mask, log_free, dirs, sp, o, y): one camera's E-step"},
     {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,

@@ -139,6 +139,23 @@ class Camera:
             f"centre={self._t.tolist()}{d})"
         )
 
+    def binned(self, factor: int = 2) -> Camera:
+        """This camera for its image binned ``factor`` x ``factor`` (each new pixel the
+        block of ``factor**2`` pixels starting at ``factor * (row, col)``; a last partial
+        row or column of blocks is dropped).  Pixel ``(u', v')``'s centre is the block's,
+        ``factor * u' + (factor - 1) / 2`` in this camera, so
+        ``K' = diag(1/f, 1/f, 1) K`` with the principal point moved by ``-(f - 1) / 2``
+        before the scaling; the distortion (in normalized coordinates) is kept."""
+        f = int(factor)
+        if f < 1 or self._width < f or self._height < f:
+            raise CameraError(f"camera: cannot bin a {self._width}x{self._height} image by {factor}")
+        if f == 1:
+            return self
+        K = self._K.copy()
+        K[:2, 2] -= (f - 1) / 2.0
+        K[:2] /= f
+        return Camera(K, pin.SE3(self._R, self._t), self._width // f, self._height // f, self._dist, self._name)
+
     # ------------------------------------------------------------- projection
     def to_camera(self, points_world: np.ndarray) -> np.ndarray:
         """World points (N,3) -> camera-frame points (N,3)."""

@@ -43,7 +43,7 @@ from ..virtual_work import _structure, body_frames, static_update
 from . import mstep as _mstep
 from .camera import Camera
 from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, fit_body_scale, pose_arrays, world_rays
-from .projection import body_bbox
+from .projection import BBox, body_bbox
 
 
 @dataclass(frozen=True)
@@ -205,6 +205,17 @@ def clean_mask(mask: np.ndarray) -> np.ndarray:
     return cv2.medianBlur(mask.astype(np.uint8), 3).astype(bool)
 
 
+def bin_mask(mask: np.ndarray, factor: int = 2) -> np.ndarray:
+    """The fraction of each ``factor`` x ``factor`` block of ``mask`` that is set
+    (float64, the image of :meth:`Camera.binned`; a last partial block is dropped)."""
+    f = int(factor)
+    h, w = mask.shape[0] // f, mask.shape[1] // f
+    if h == 0 or w == 0:
+        return np.zeros((h, w))
+    m = np.asarray(mask[: h * f, : w * f], dtype=np.float32)
+    return cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA).astype(np.float64)
+
+
 def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Diagonal spring stiffness on [mu, theta0..3] (7,) from a 6x6 Gauss-Newton matrix
     in (world translation, world rotation vector): δθ = ½ E(θ) ω and ω = 2 E(θ)ᵀ δθ,
@@ -336,6 +347,12 @@ class Tracker:
             the same accuracy to three decimals with two or four cameras, 1.25x the
             frames/s; with one camera the lower body with limits gave a median of 2.1 %
             and 6.7° over five seeds, against 2.2 % and 6.2°.
+        coarse_delta_px: iterations whose edge width is at least this many pixels (from
+            ``delta_start``, the first two of a frame) run on the masks binned 2x2 and
+            cameras to match (:meth:`Camera.binned`): a quarter of the pixels, each
+            holding the fraction of its block that is set, and the same edge width in
+            world terms (half as many binned pixels).  The narrow-edge iterations that
+            follow are at full resolution.  None: full resolution throughout.
         m_iterations: Gauss-Newton iterations of each body's M-step.
         damping: M-step damping towards the primary pose, relative to the data.
         stiffness_floor: least spring stiffness, as a fraction of the strongest body's.
@@ -430,6 +447,7 @@ class Tracker:
         prediction: str = "constant_velocity",
         delta_start: float = 2.8,
         delta_final: float = 0.7,
+        coarse_delta_px: float | None = None,
         m_iterations: int = 2,
         damping: float = 1e-2,
         stiffness_floor: float = 1e-2,
@@ -476,11 +494,14 @@ class Tracker:
         if not (np.isfinite(norm) and norm > 0.0):
             raise ValueError(f"up must be a non-zero 3-vector, not {up.tolist()!r}")
         self.up = up / norm
-        self._scratch: dict[int, np.ndarray] = {}  # per camera: the E-step's union image (_zeroed)
+        self._scratch: dict[tuple, np.ndarray] = {}  # per camera and size: the E-step's union image (_zeroed)
         self._fk: tuple | None = None  # _body_poses' last configuration and poses
         self._anchor: np.ndarray | None = None  # the root's position at the frame's start (depth_prior)
         self.prediction = prediction
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)
+        self.coarse_delta_px = None if coarse_delta_px is None else float(coarse_delta_px)
+        # each camera binned 2x2, for the wide-edge iterations (coarse_delta_px)
+        self._binned = {c: c.binned(2) for c in self.cameras if min(c.width, c.height) >= 8}
         self.m_iterations, self.damping = m_iterations, damping
         self.stiffness_floor = stiffness_floor
         self.max_pixels = max_pixels
@@ -653,12 +674,20 @@ class Tracker:
         self._calibrated = True
         return self.scales.copy()
 
-    def iterate(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float, timings: dict) -> np.ndarray:
-        """One ECM iteration (E-step, M-step, static update) from ``q``; returns the new q."""
+    def iterate(
+        self,
+        q: np.ndarray,
+        masks: Sequence[np.ndarray],
+        delta_px: float,
+        timings: dict,
+        cameras: Sequence[Camera] | None = None,
+    ) -> np.ndarray:
+        """One ECM iteration (E-step, M-step, static update) from ``q``; returns the new q.
+        ``cameras``: the cameras of ``masks`` (default the tracker's; e.g. binned)."""
         robot = self.robot
         n = len(robot.bodies)
         t0 = time.perf_counter()
-        poses, views = self.e_step(q, masks, delta_px)
+        poses, views = self.e_step(q, masks, delta_px, cameras)
         t1 = time.perf_counter()
         # M-step: every body on its own.
         fits = fit_bodies(
@@ -686,11 +715,15 @@ class Tracker:
         timings["static_update"] += t3 - t2
         return q_new
 
-    def e_step(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float):
+    def e_step(
+        self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float, cameras: Sequence[Camera] | None = None
+    ):
         """E-step at ``q``: each body's sharp silhouette in every camera, their union,
         and for every body its :class:`BodyView` per camera (mask, what the other bodies
-        explain, inlier weights).  Returns the body poses and the views."""
+        explain, inlier weights).  ``masks`` are bool, or float64 fractions (binned);
+        ``cameras`` theirs (default the tracker's).  Returns the body poses and the views."""
         robot = self.robot
+        cameras = self.cameras if cameras is None else cameras
         n = len(robot.bodies)
         poses, Rs, ts = self._body_poses(q)
         native = _mstep.NATIVE
@@ -700,8 +733,16 @@ class Tracker:
         images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
         views: list[list[BodyView]] = [[] for _ in range(n)]
         widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
-        for c, (cam, mask) in enumerate(zip(self.cameras, masks)):
+        for c, (cam, mask) in enumerate(zip(cameras, masks)):
             log_free = self._zeroed(c, cam.shape)  # Σ_j log(1 - s_j)
+            if native and self.outlier <= 0 and cam.dist is None:
+                fused = self._e_step_fused(cam, mask, Rs, ts, As, log_free, delta_px)
+                if fused is not None:  # the lines below in one C call
+                    for i, v in enumerate(fused):
+                        if v is not None:
+                            views[i].append(v)
+                    self._scratch[c, cam.shape] = log_free
+                    continue
             log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
             # the union needs every pixel: the E-step works at full resolution
             body_imgs = body_images(cam, poses, self.inner, delta_px, max_pixels=10**9, arrays=(Rs, ts))
@@ -731,7 +772,7 @@ class Tracker:
                 # outlier class: p(y | model) of the union (edge >= outlier_px wide) against a
                 # constant outlier density; inlier responsibility = p / (p + ε)
                 miss = np.exp(log_free_o)  # 1 - M
-                p_in = np.where(mask, 1.0 - miss, miss)
+                p_in = mask * (1.0 - miss) + (1.0 - mask) * miss  # mask: 0/1 or a fraction
                 weight = p_in / (p_in + self.outlier)
             for i in range(n):
                 img = images[i][c]
@@ -744,22 +785,52 @@ class Tracker:
                 else:
                     others = log_free[img.slices].ravel() + img.s
                     o = -np.expm1(np.minimum(others, 0.0))
-                    y = mask[img.slices].ravel().astype(float)
+                    y = mask[img.slices].ravel().astype(float)  # 0/1, or a binned fraction
                 wt = None if weight is None else weight[img.slices].ravel()
                 views[i].append(self._subsampled(img, y, o, wt))
             for img in body_imgs:  # zeroed again for the next E-step
                 if img is not None:
                     log_free[img.slices] = 0.0
-            self._scratch[c] = log_free
+            self._scratch[c, cam.shape] = log_free
         return poses, views
 
+    def _e_step_fused(self, cam: Camera, mask, Rs, ts, As, log_free, delta_px: float) -> list | None:
+        """One camera's E-step in one C call (``kms2pin._kernels.estep_camera``): every
+        body's :class:`BodyView` (None: out of view), the same as the per-body kernels
+        give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
+        path (straddling the camera plane or degenerate)."""
+        n = len(Rs)
+        status, boxes, delta = _mstep._boxes(cam, Rs, ts, np.asarray(self.inner), delta_px, 2.0)
+        if (status == 1).any():
+            return None
+        seen = status == 2
+        boxes[~seen] = 0.0
+        counts = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+        offset = np.zeros(n + 1)
+        np.cumsum(counts, out=offset[1:])
+        N = int(offset[-1])
+        dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
+        inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
+        _kernels.estep_camera(
+            world_rays(cam), As.reshape(n, 9), cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask),
+            log_free, dirs, sp, o, y,
+        )
+        out: list = [None] * n
+        ib, off = boxes.astype(int).tolist(), offset.astype(int).tolist()
+        for i in np.flatnonzero(seen).tolist():
+            a, b = off[i], off[i + 1]
+            img = BodyImage(cam, BBox(*ib[i]), 1, dirs[a:b], float(delta[i]))
+            img.s = sp[a:b]
+            out[i] = self._subsampled(img, y[a:b], o[a:b], None)
+        return out
+
     def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:
-        """Camera ``c``'s scratch image for the E-step's union, all zeros: the last
+        """Camera ``c``'s scratch image of ``shape`` for the E-step's union, all zeros: the last
         E-step's, which re-zeroed it over the bodies' boxes only (a fresh 320x240 array
         a camera and iteration costs more than the boxes' pixels).  It is taken out
         until then, so an E-step that raised leaves none behind."""
-        buf = self._scratch.pop(c, None)
-        return buf if buf is not None and buf.shape == shape else np.zeros(shape)
+        buf = self._scratch.pop((c, shape), None)
+        return buf if buf is not None else np.zeros(shape)
 
     def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
         """The M-step's view of a full-resolution body image: every ``stride``-th row and
@@ -896,10 +967,11 @@ class Tracker:
             q = self.q.copy()
             if self.prediction == "constant_velocity" and self._prev is not None:
                 q = robot.clamp(pin.integrate(model, q, self._velocity()))
-            q, it, converged = self._ecm(q, masks, timings)
+            coarse = self._coarse(masks)
+            q, it, converged = self._ecm(q, masks, timings, coarse=coarse)
             fit = self._iou(q, masks)
             if self.mirror_hypothesis or self.swap_hypothesis:
-                q, fit, switched = self._hypotheses_step(q, fit, masks, timings)
+                q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse)
                 if switched:
                     flags += (f"switched to the {_KIND_WORDS[switched]} hypothesis",)
             poor = fit < self.poor_fit
@@ -916,19 +988,33 @@ class Tracker:
         self._advance(q, keep_velocity=not poor)
         return res
 
+    def _coarse(self, masks: Sequence[np.ndarray]) -> tuple[list[Camera], list[np.ndarray]] | None:
+        """The binned cameras and masks of the wide-edge iterations (``coarse_delta_px``),
+        or None when they are off (or a camera is too small to bin)."""
+        if self.coarse_delta_px is None or self.delta_start < self.coarse_delta_px:
+            return None
+        if not all(c in self._binned for c in self.cameras):
+            return None
+        return [self._binned[c] for c in self.cameras], [bin_mask(m) for m in masks]
+
     def _ecm(
-        self, q: np.ndarray, masks, timings: dict, max_iterations: int | None = None
+        self, q: np.ndarray, masks, timings: dict, max_iterations: int | None = None, coarse=None
     ) -> tuple[np.ndarray, int, bool]:
         """ECM iterations from ``q`` until the configuration stops changing (edge width
         annealed), at most ``max_iterations`` (default: the tracker's); returns the
-        configuration, the iterations run and whether it converged."""
+        configuration, the iterations run and whether it converged.  ``coarse``: the
+        binned cameras and masks (:meth:`_coarse`) for the iterations whose edge is at
+        least ``coarse_delta_px`` wide."""
         it = 0
         self._anchor = q[:3].copy() if self._root_dofs else None
         delta = self.delta_start
         limit = self.max_iterations if max_iterations is None else max(1, int(max_iterations))
         pts = self._outline_pixels(q) if self.tol_px is not None else None
         for it in range(1, limit + 1):
-            q_new = self.iterate(q, masks, delta, timings)
+            if coarse is not None and delta >= self.coarse_delta_px * 0.9999:
+                q_new = self.iterate(q, coarse[1], 0.5 * delta, timings, coarse[0])
+            else:
+                q_new = self.iterate(q, masks, delta, timings)
             settled = self._change(q, q_new) < self.tol
             if pts is not None:
                 pts_new = self._outline_pixels(q_new)
@@ -982,7 +1068,9 @@ class Tracker:
         a, b = self._swap_pairs
         return float(np.abs(np.concatenate([qa[a] - q[a], qa[b] - q[b]])).max()) < _MERGE
 
-    def _hypotheses_step(self, q: np.ndarray, fit: float, masks, timings: dict) -> tuple[np.ndarray, float, str]:
+    def _hypotheses_step(
+        self, q: np.ndarray, fit: float, masks, timings: dict, coarse=None
+    ) -> tuple[np.ndarray, float, str]:
         """Track the alternative hypotheses alongside the main one (``q``, its ``fit``
         this frame); return the pose to report, its fit and the kind switched to ("" if
         none).  An alternative is spawned as the flip of the main one, tracked with its
@@ -1005,7 +1093,7 @@ class Tracker:
             pred = qa
             if self.prediction == "constant_velocity":
                 pred = self.robot.clamp(pin.integrate(self.robot.model, qa, self._velocity(pa, qa)))
-            qa_new, _, _ = self._ecm(pred, masks, timings, self.hypothesis_iterations)
+            qa_new, _, _ = self._ecm(pred, masks, timings, self.hypothesis_iterations, coarse)
             fa = self._iou(qa_new, masks)
             sc = (1.0 - a) * sc + a * fa
             self._alts[kind] = [qa_new, qa, sc, fa]

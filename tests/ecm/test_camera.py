@@ -62,6 +62,35 @@ def test_rays_back_project_pixels_onto_their_own_projection(with_dist):
         np.testing.assert_allclose(cam.project(centre + s * dirs), pixels, atol=1e-6)
 
 
+@pytest.mark.parametrize("factor", [2, 3])
+def test_a_binned_cameras_pixel_centres_are_the_centres_of_the_blocks(factor):
+    # undistorted: the image plane is linear, so the ray through a binned pixel's
+    # centre is the mean of the rays through its block's pixel centres
+    cam = random_camera(np.random.default_rng(3), kind=2)
+    b = cam.binned(factor)
+    assert (b.width, b.height) == (cam.width // factor, cam.height // factor)
+    full = cam.ray_grid[: b.height * factor, : b.width * factor]
+    blocks = full.reshape(b.height, factor, b.width, factor, 3).mean(axis=(1, 3))
+    np.testing.assert_allclose(b.ray_grid, blocks, atol=1e-12)
+    np.testing.assert_allclose(b.centre, cam.centre)
+
+
+@pytest.mark.parametrize("with_dist", [False, True])
+def test_a_binned_camera_projects_a_point_to_its_block_coordinates(with_dist):
+    # full-resolution pixel x lies at (x - (f - 1) / 2) / f in the binned image
+    rng = np.random.default_rng(8)
+    cam = random_camera(rng, kind=2, dist=DIST if with_dist else None)
+    pts = _random_points_in_front(rng, cam, 100)
+    np.testing.assert_allclose(cam.binned(2).project(pts), (cam.project(pts) - 0.5) / 2.0, atol=1e-9)
+    assert cam.binned(1) is cam
+
+
+def test_binning_an_image_smaller_than_the_factor_is_a_camera_error():
+    cam = Camera(np.diag([10.0, 10.0, 1.0]), pin.SE3.Identity(), 3, 1)
+    with pytest.raises(CameraError, match="cannot bin a 3x1 image by 2"):
+        cam.binned(2)
+
+
 def test_default_camera_sees_a_point_on_its_axis_at_the_image_centre():
     cam = Camera.default()
     np.testing.assert_allclose(cam.project(np.array([[0.0, 0.0, 8.0]])), [[159.5, 119.5]])

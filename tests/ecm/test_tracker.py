@@ -173,9 +173,10 @@ def test_noisy_mismatched_walk_does_not_diverge():
     assert errs[-10:].mean() < 1.5 * errs[:10].mean() + 0.2
 
 
-@pytest.mark.parametrize("outlier", [0.0, 0.01])
-def test_native_and_numpy_trackers_agree(monkeypatch, outlier):
-    """The C kernels (E-step, M-step) and the NumPy code give the same track."""
+@pytest.mark.parametrize("outlier, coarse", [(0.0, None), (0.01, None), (0.0, 1.4)])
+def test_native_and_numpy_trackers_agree(monkeypatch, outlier, coarse):
+    """The C kernels (E-step, M-step) and the NumPy code give the same track, on the
+    masks and on their 2x2 binned fractions (coarse_delta_px)."""
     from kms2pin.ecm import mstep
 
     if mstep._kernels is None:
@@ -188,7 +189,8 @@ def test_native_and_numpy_trackers_agree(monkeypatch, outlier):
     out = {}
     for native in (True, False):
         monkeypatch.setattr(mstep, "NATIVE", native)
-        out[native] = Tracker(robot, cams, q0=q0, outlier=outlier, calibrate_sizes=False).step(render(robot, qt, cams))
+        tr = Tracker(robot, cams, q0=q0, outlier=outlier, calibrate_sizes=False, coarse_delta_px=coarse)
+        out[native] = tr.step(render(robot, qt, cams))
     np.testing.assert_allclose(out[True].q, out[False].q, atol=1e-9)
     assert out[True].iterations == out[False].iterations
     assert centre_error(robot, out[True].q, qt) < 0.5
@@ -607,3 +609,90 @@ def test_e_step_scratch_image_leaves_nothing_behind():
         for a, b in zip(va, vb):
             np.testing.assert_array_equal(a.o, b.o)
             np.testing.assert_array_equal(a.y, b.y)
+
+
+@pytest.mark.parametrize("shape", [(240, 320), (7, 9), (1, 5)])
+def test_bin_mask_gives_each_blocks_set_fraction(shape):
+    from kms2pin.ecm.tracker import bin_mask
+
+    rng = np.random.default_rng(shape[0])
+    mask = rng.random(shape) < 0.4
+    h, w = shape[0] // 2, shape[1] // 2
+    out = bin_mask(mask)
+    assert out.shape == (h, w) and out.dtype == np.float64
+    blocks = mask[: 2 * h, : 2 * w].reshape(h, 2, w, 2).sum(axis=(1, 3)) / 4.0
+    np.testing.assert_array_equal(out, blocks)
+
+
+def test_wide_edge_iterations_run_on_binned_masks_and_the_pose_is_recovered(monkeypatch):
+    """coarse_delta_px: the iterations whose edge is at least that wide see each camera
+    binned 2x2 (half the edge width in binned pixels, the masks' block fractions);
+    the narrow-edge ones full resolution.  Both schedules recover the pose."""
+    robot = _robot("lowerbody")
+    rng = np.random.default_rng(21)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    q0 = _perturbed(robot, qt, rng)
+    masks = render(robot, qt, cams)
+    seen = []
+    real = Tracker.iterate
+
+    def spy(self, q, m, delta, timings, cameras=None):
+        cams_used = self.cameras if cameras is None else cameras
+        seen.append((delta, [c.shape for c in cams_used], [x.dtype for x in m]))
+        if cameras is not None:  # each binned mask is its block fractions of the mask
+            for full, binned in zip(masks, m):
+                np.testing.assert_array_equal(binned, full.reshape(120, 2, 160, 2).mean(axis=(1, 3)))
+        return real(self, q, m, delta, timings, cameras)
+
+    monkeypatch.setattr(Tracker, "iterate", spy)
+    errs = {}
+    for coarse in (1.4, None):
+        seen.clear()
+        tr = Tracker(robot, cams, q0=q0, max_iterations=10, calibrate_sizes=False, coarse_delta_px=coarse)
+        r = tr.step(masks)
+        errs[coarse] = centre_error(robot, r.q, qt)
+        assert r.fit > 0.97
+        if coarse is None:
+            assert all(shapes == [(240, 320)] * 2 and delta <= 2.8 for delta, shapes, _ in seen)
+        else:  # 2.8 and 1.4 px binned (1.4 and 0.7 binned pixels), then 0.7 px at full size
+            assert [(d, s) for d, s, _ in seen[:3]] == [(1.4, [(120, 160)] * 2), (0.7, [(120, 160)] * 2),
+                                                         (0.7, [(240, 320)] * 2)]
+            assert all(dt == np.float64 for _, _, dts in seen[:2] for dt in dts)
+            assert all(s == [(240, 320)] * 2 for _, s, _ in seen[2:])
+    before = centre_error(robot, q0, qt)
+    assert max(errs.values()) < 0.5 and max(errs.values()) < 0.2 * before
+
+
+def test_the_one_call_e_step_gives_the_per_body_kernels_views():
+    """Tracker.e_step runs a camera in one C call (estep_camera) unless a body needs the
+    per-body path; both give the same views to the last bit, and leave the scratch
+    image zeroed."""
+    from kms2pin.ecm import mstep
+
+    if mstep._kernels is None:
+        pytest.skip("kms2pin._kernels not built")
+    robot = _robot("fullbody")
+    cams = _cams(robot)
+    rng = np.random.default_rng(5)
+    q = robot.random_configuration(rng, 30)
+    masks = render(robot, robot.random_configuration(rng, 30), cams)
+    from kms2pin.ecm.tracker import bin_mask
+
+    for ms, cs, delta in ((masks, None, 0.7), ([bin_mask(m) for m in masks], [c.binned(2) for c in cams], 1.4)):
+        one = Tracker(robot, cams)
+        calls = []
+        real = one._e_step_fused
+        one._e_step_fused = lambda *a: calls.append(1) or real(*a)
+        _, fused = one.e_step(q, ms, delta, cs)
+        assert len(calls) == 2 and all(not b.any() for b in one._scratch.values())
+        per_body = Tracker(robot, cams)
+        per_body._e_step_fused = lambda *a: None
+        _, ref = per_body.e_step(q, ms, delta, cs)
+        assert sum(len(v) for v in ref) > len(robot.bodies)
+        for va, vb in zip(fused, ref):
+            assert len(va) == len(vb)
+            for a, b in zip(va, vb):
+                assert a.image.box == b.image.box and a.image.delta == b.image.delta
+                for x, y in ((a.y, b.y), (a.o, b.o), (a.image.s, b.image.s), (a.image.dirs, b.image.dirs)):
+                    np.testing.assert_array_equal(x, y)
