@@ -1079,7 +1079,7 @@ static PyObject *estep_camera(PyObject *self, PyObject *const *args, Py_ssize_t 
  * e_i = (t_i - t'_i, log(R_i R'_i^T)) from X and T (n, 7) [t, x, y, z, w], its
  * LOCAL_WORLD_ALIGNED Jacobian J_i (6 x nv) at the body centre from Pinocchio's data.J
  * (world frame) and the support mask S (n, nv); K (n, 36) row-major 6x6 stiffness.
- * A = sum J_i^T K_i J_i, g = sum J_i^T K_i e_i. */
+ * A = sum J_i^T K_i J_i, g = sum J_i^T K_i e_i; returns the energy sum 1/2 e_i^T K_i e_i. */
 static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -1110,7 +1110,7 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
         release(b, 7);
         return PyErr_NoMemory();
     }
-    double *KJ = Jb + 6 * nv;
+    double *KJ = Jb + 6 * nv, energy = 0.0;
     for (Py_ssize_t a = 0; a < nv; a++) {
         V(b[6], a) = 0.0;
         for (Py_ssize_t c = 0; c < nv; c++) AT(b[5], a, c) = 0.0;
@@ -1133,6 +1133,8 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
         double nrm = sqrt(dot3(v, v));
         double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
         for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
+        for (int r = 0; r < 6; r++)
+            for (int c = 0; c < 6; c++) energy += 0.5 * e[r] * AT(b[3], i, 6 * r + c) * e[c];
         /* J_i: rows (linear at p; angular), supported columns only */
         for (Py_ssize_t a = 0; a < nv; a++) {
             double sa = AT(b[4], i, a);
@@ -1164,7 +1166,7 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
     }
     PyMem_Free(Jb);
     release(b, 7);
-    Py_RETURN_NONE;
+    return PyFloat_FromDouble(energy);
 }
 
 /* ------------------------------------------------------------------ one body's M-step
@@ -1514,7 +1516,7 @@ static PyMethodDef methods[] = {
     {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,
-     "pose_springs(J, X, T, K, S, A, g): the tracker's full-spring static update system"},
+     "pose_springs(J, X, T, K, S, A, g) -> energy: the tracker's full-spring static update system"},
     {"body_boxes", (PyCFunction)(void (*)(void))body_boxes, METH_FASTCALL,
      "body_boxes(R, t, inner, Rwc, centre, K, delta_px, slack_px, width, height, box, delta, status)"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,

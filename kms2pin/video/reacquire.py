@@ -12,12 +12,17 @@ frames.  After an empty frame it is *searching*:
 - on the other frames, a fit (IoU of the model's silhouettes with the masks)
   of at least ``good`` times the *reference fit* (the median fit of the
   recent frames tracked before the subject left, or the initial pose's) ends
-  the search; a lower one starts a fresh
-  :func:`~kms2pin.video.init.initial_pose_details` search from the last
+  the search once a search has been tried; otherwise a fresh
+  :func:`~kms2pin.video.init.initial_pose_details` search starts from the last
   well-tracked pose's joint angles (a frame is well tracked if its fit is good
   and no silhouette comes near the border: a silhouette cut by the border can
-  be fitted well by a wrong pose), and the tracker restarts from the found
-  pose if it fits better (flag ``"reinitialized"``).
+  be fitted well by a wrong pose); its pose, refined by ECM on the frame
+  (:meth:`~kms2pin.ecm.tracker.Tracker.refine`), replaces the tracked one if it
+  fits better, and the tracker restarts from it (flag ``"reinitialized"``).
+  Searches go on for the first ``searches`` frames the subject is back wholly in
+  view even if the tracked pose fits: a wrong pose (turned round, walking
+  backwards with the knees bent backwards) can fit the silhouettes well too,
+  and a search from one frame can miss the pose that the next one finds.
 
 After ``max_attempts`` searches without a good fit it gives up (a note says so).
 """
@@ -67,6 +72,7 @@ class Reacquisition:
         wait: int = 15,
         margin: int = 4,
         max_attempts: int = 10,
+        searches: int = 3,
         memory: int = 10,
     ):
         self.robot = robot
@@ -75,6 +81,7 @@ class Reacquisition:
         self.wait = wait
         self.margin = margin
         self.max_attempts = max_attempts
+        self.searches = searches
         self._fits: deque[float] = deque([reference_fit] if reference_fit else [], maxlen=memory)
         self.last_good_q = np.array(q0, dtype=float)
         self.searching = False
@@ -106,7 +113,8 @@ class Reacquisition:
                 self._good(result)
             return tracker, result, None
         self.frames_back += 1
-        if inside and result.fit >= target:
+        if inside and result.fit >= target and self.attempts >= self.searches:
+            # it fits, and searches have been tried since the subject came back
             self._good(result)
             return tracker, result, None
         if not inside and self.frames_back <= self.wait:
@@ -121,11 +129,15 @@ class Reacquisition:
 
         self.attempts += 1
         found = initial_pose_details(self.robot, self.cameras, masks, q_start=self.last_good_q)
-        if found.fit <= result.fit:
+        # the search's pose refined by ECM, against the tracked one
+        q_found, fit_found = tracker.refine(found.q, masks, source)
+        if fit_found <= result.fit:
+            if inside and result.fit >= target and self.attempts >= self.searches:
+                self._good(result)
             return tracker, result, None
         # the same subject, tracked the same way: its options, the body sizes measured at
         # the start and its upright axis are kept
-        tracker.restart(found.q)
+        tracker.restart(q_found)
         r = tracker.step(masks, source=source)
         result = FrameResult(r.q, r.body_poses, r.iterations, r.fit, r.converged, r.flags + ("reinitialized",),
                              r.timings)

@@ -424,21 +424,42 @@ def test_the_mirror_image_looks_the_same_from_afar_and_is_an_involution():
 
 
 @pytest.mark.slow
-def test_mirror_hypothesis_takes_the_right_way_round_a_turn_in_one_view():
-    """One camera, the walk's second turn (frames 150-210, through facing the camera),
-    5 % noise and 10 % size mismatch: the mirror-image hypothesis wins during the turn
-    and the track ends facing the true way (a single hypothesis ends turned ~175 deg)."""
+@pytest.mark.slow
+def test_mirror_hypothesis_brings_back_a_track_started_mirrored_in_one_view():
+    """One camera, the walk's second turn (frames 178-210, from facing the camera to
+    side-on), 5 % noise and 10 % size mismatch, the tracker started at the mirror image
+    of the true pose (137 deg off; the same silhouette): with the mirror hypothesis it
+    switches and ends facing the true way on every noise seed; a single hypothesis
+    stays mirrored on some (measured: seeds 0 and 2 end 158 and 170 deg off, against
+    6 and 17 deg with it).
+
+    (A track started at the true pose in the middle of the turn, frames 150-210, ends
+    the right way round or mirrored about as often with the mirror hypothesis as
+    without it: the outcome of a turn seen in one view depends on the noise seed.)"""
     from kms2pin.ecm.synth import synthesize
 
     robot = _anatomical()
-    motion = make_motion(robot, "walk", 300)[150:210]
+    motion = make_motion(robot, "walk", 300)[178:210]
     cams = [Camera.default()]
-    data = [m for _, m in synthesize(robot, motion, cams, noise=0.05, size_mismatch=0.1, rng=np.random.default_rng(0))]
-    tr = Tracker(robot, cams, q0=motion[0])
-    results = [tr.step(m) for m in data]
-    assert any("switched to the mirror hypothesis" in f for r in results for f in r.flags)
-    assert _root_angle_deg(results[-1].q, motion[-1]) < 20.0
-    assert centre_error(robot, results[-1].q, motion[-1]) < 3.0
+    q0 = Tracker(robot, cams, q0=motion[0])._mirror(motion[0])
+    assert _root_angle_deg(q0, motion[0]) > 120.0
+    final = {}
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        data = [m for _, m in synthesize(robot, motion, cams, noise=0.05, size_mismatch=0.1, rng=rng)]
+        for mirror in (True, False):
+            tr = Tracker(robot, cams, q0=q0, mirror_hypothesis=mirror, calibrate_sizes=False)
+            results = [tr.step(m) for m in data]
+            switched = any("switched to the mirror hypothesis" in f for r in results for f in r.flags)
+            assert switched == mirror or not switched
+            final[seed, mirror] = _root_angle_deg(results[-1].q, motion[-1])
+            if mirror:
+                assert switched
+                assert final[seed, mirror] < 20.0
+                # measured 2.2, 1.6 and 5.2 % (one view, sizes not calibrated); the
+                # mirrored ends are 14-23 % off
+                assert centre_error(robot, results[-1].q, motion[-1]) < 8.0
+    assert max(final[s, False] for s in range(3)) > 90.0
 
 
 def test_image_motion_is_the_pinhole_displacement_of_the_outline_points():
@@ -509,8 +530,8 @@ def test_depth_prior_holds_the_root_distance_along_the_ray():
     nv = robot.model.nv
     A, g = np.eye(nv), np.zeros(nv)
     pin.forwardKinematics(robot.model, robot.data, q)
-    tr._depth_spring(A, g, robot.data)
-    k = 1.0  # depth_prior * trace(eye(3)) / 3
+    k = 0.7
+    e0 = tr._depth_spring(A, g, robot.data, k)
     n = tr._anchor - cams[0].centre
     n /= np.linalg.norm(n)
 
@@ -521,6 +542,7 @@ def test_depth_prior_holds_the_root_distance_along_the_ray():
     eps = 1e-6
     fd = [(energy(eps * np.eye(nv)[a]) - energy(-eps * np.eye(nv)[a])) / (2 * eps) for a in range(nv)]
     np.testing.assert_allclose(g, fd, atol=1e-7)
+    assert e0 == pytest.approx(energy(np.zeros(nv)), rel=1e-12)
 
 
 def test_upright_spring_is_the_gradient_of_its_energy_and_free_about_the_vertical():
@@ -533,7 +555,7 @@ def test_upright_spring_is_the_gradient_of_its_energy_and_free_about_the_vertica
     up = up / np.linalg.norm(up)
     np.testing.assert_allclose(pin.XYZQUATToSE3(robot.q_rest[:7]).rotation @ tr._up_root, up, atol=1e-12)
     nv = robot.model.nv
-    k = 1.0  # upright * trace(eye(3)) / 3
+    k = 1.3
 
     def energy(q):
         R = pin.XYZQUATToSE3(q[:7]).rotation
@@ -546,7 +568,7 @@ def test_upright_spring_is_the_gradient_of_its_energy_and_free_about_the_vertica
         q[3:7] = pin.Quaternion(pin.exp3(rng.uniform(-1.0, 1.0, 3))).coeffs()  # a tilted root
         A, g = np.eye(nv), np.zeros(nv)
         pin.forwardKinematics(robot.model, robot.data, q)
-        tr._upright_spring(A, g, robot.data)
+        assert tr._upright_spring(A, g, robot.data, k) == pytest.approx(energy(q), rel=1e-12)
         basis = np.eye(nv)
         fd = [(energy(pin.integrate(robot.model, q, eps * e)) - energy(pin.integrate(robot.model, q, -eps * e))) / (2 * eps) for e in basis]
         np.testing.assert_allclose(g, fd, atol=1e-7)
@@ -560,8 +582,8 @@ def test_upright_spring_is_the_gradient_of_its_energy_and_free_about_the_vertica
     q = robot.q_rest.copy()
     pin.forwardKinematics(robot.model, robot.data, q)
     A, g = np.zeros((nv, nv)), np.zeros(nv)
-    A[3:6, 3:6] = np.eye(3)  # the scale k is taken from here
-    tr._upright_spring(A, g, robot.data)
+    A[3:6, 3:6] = np.eye(3)
+    tr._upright_spring(A, g, robot.data, k)
     h = 1e-4
     for a in range(3, 6):
         e = h * np.eye(nv)[a]
@@ -696,3 +718,21 @@ def test_the_one_call_e_step_gives_the_per_body_kernels_views():
                 assert a.image.box == b.image.box and a.image.delta == b.image.delta
                 for x, y in ((a.y, b.y), (a.o, b.o), (a.image.s, b.image.s), (a.image.dirs, b.image.dirs)):
                     np.testing.assert_array_equal(x, y)
+
+
+def test_refine_fits_one_frame_from_a_given_pose_and_leaves_the_tracker_as_it_was():
+    robot = _robot("lowerbody")
+    rng = np.random.default_rng(23)
+    qt = robot.random_configuration(rng, 20)
+    cams = _cams(robot)
+    masks = render(robot, qt, cams)
+    tr = Tracker(robot, cams, calibrate_sizes=False)
+    tr.step(render(robot, robot.q_rest, cams))
+    state = (tr.q.copy(), tr._prev.copy(), tr.frame)
+    q0 = _perturbed(robot, qt, rng)
+    q, fit = tr.refine(q0, masks)
+    assert fit > 0.97 and fit == pytest.approx(tr._iou(q, tr._masks(masks, "x")))
+    assert centre_error(robot, q, qt) < 0.5 < centre_error(robot, q0, qt)
+    np.testing.assert_array_equal(tr.q, state[0])
+    np.testing.assert_array_equal(tr._prev, state[1])
+    assert tr.frame == state[2] and tr.cameras == cams
