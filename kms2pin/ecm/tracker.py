@@ -884,10 +884,10 @@ class Tracker:
 
         Each Gauss-Newton step must lower the springs' energy ``½ Σ e_iᵀ K_i e_i`` (plus
         the priors'): a step that raises it is halved, up to ``_BACKTRACK`` times, and if
-        none lowers it the update stops there.  The full step can overshoot far when
-        rotation errors are large (the log map's Jacobian is then far from the
-        identity's): on the two-camera full-body walk (noise seed 1) undamped steps
-        raised the energy 200-fold within one update and turned the root by 91°.
+        none lowers it the update stops there.  The springs are nonlinear in the
+        rotations, and a full step can overshoot far: on the two-camera full-body walk
+        with joint limits (noise seed 1) undamped steps raised the energy 200-fold
+        within one update and turned the root by 91°.
         """
         robot = self.robot
         model, data = robot.model, robot.data
