@@ -12,15 +12,15 @@ frames.  After an empty frame it is *searching*:
 - on the other frames, a fit (IoU of the model's silhouettes with the masks)
   of at least ``good`` times the *reference fit* (the median fit of the
   recent frames tracked before the subject left, or the initial pose's) ends
-  the search once a search has been tried; otherwise a fresh
+  the search once ``searches`` searches have been tried; otherwise a fresh
   :func:`~kms2pin.video.init.initial_pose_details` search starts from the last
   well-tracked pose's joint angles (a frame is well tracked if its fit is good
   and no silhouette comes near the border: a silhouette cut by the border can
   be fitted well by a wrong pose); its pose, refined by ECM on the frame
   (:meth:`~kms2pin.ecm.tracker.Tracker.refine`), replaces the tracked one if it
   fits better, and the tracker restarts from it (flag ``"reinitialized"``).
-  Searches go on for the first ``searches`` frames the subject is back wholly in
-  view even if the tracked pose fits: a wrong pose (turned round, walking
+  So searches go on for the first ``searches`` frames the subject is back wholly
+  in view even if the tracked pose fits (unless one wins): a wrong pose (turned round, walking
   backwards with the knees bent backwards) can fit the silhouettes well too,
   and a search from one frame can miss the pose that the next one finds.
 
@@ -59,6 +59,7 @@ class Reacquisition:
         wait: frames after the return during which a subject at the border is not searched for.
         margin: pixels from the image border that count as "at the border".
         max_attempts: searches after one return before giving up.
+        searches: searches tried after a return even when the tracked pose fits.
         memory: how many recent good fits make the reference (their median).
     """
 
