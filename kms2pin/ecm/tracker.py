@@ -515,6 +515,10 @@ class Tracker:
         self.prediction = prediction
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)
         self.coarse_delta_px = None if coarse_delta_px is None else float(coarse_delta_px)
+        if self.coarse_delta_px is not None and not self.coarse_delta_px > self.delta_final:
+            raise ValueError(
+                f"coarse_delta_px must be above delta_final ({self.delta_final}) or None, not {coarse_delta_px!r}"
+            )
         # each camera binned 2x2, for the wide-edge iterations (coarse_delta_px)
         self._binned = {c: c.binned(2) for c in self.cameras if min(c.width, c.height) >= 8}
         self.m_iterations, self.damping = m_iterations, damping

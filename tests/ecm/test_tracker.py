@@ -684,6 +684,9 @@ def test_wide_edge_iterations_run_on_binned_masks_and_the_pose_is_recovered(monk
             assert all(s == [(240, 320)] * 2 for _, s, _ in seen[2:])
     before = centre_error(robot, q0, qt)
     assert max(errs.values()) < 0.5 and max(errs.values()) < 0.2 * before
+    for bad in (0.0, 0.7, -1.0, float("nan")):  # the final, narrow-edge iterations stay at full size
+        with pytest.raises(ValueError, match="coarse_delta_px"):
+            Tracker(robot, cams, coarse_delta_px=bad)
 
 
 def test_the_one_call_e_step_gives_the_per_body_kernels_views():
