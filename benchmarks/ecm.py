@@ -75,7 +75,8 @@ CASES = {
 
 
 def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
-    """Track one case; print its row and return (centre error %, revolute RMSE deg, frames/s)."""
+    """Track one case; print its row and return (centre error %, revolute RMSE deg, frames/s,
+    last 30 / first 30)."""
     spec, motion_name, ncam, *case_kw = CASES[name]
     tracker_kw = {**(case_kw[0] if case_kw else {}), **tracker_kw}
     robot = load(SPECS / f"{spec}.kms", root="free")
@@ -100,7 +101,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
         f"S {split['static_update'] / wall:.0%}",
         flush=True,
     )
-    return rep["mean_centre_error_pct"], rep["revolute_rmse_deg"], frames / wall
+    return rep["mean_centre_error_pct"], rep["revolute_rmse_deg"], frames / wall, rep["first_vs_last_ratio"]
 
 
 def main():
@@ -127,10 +128,11 @@ def main():
     for name in a.only.split(",") if a.only else CASES:
         rows = [run_case(name, a.frames, a.noise, a.size_mismatch, a.level, seed, **options) for seed in seeds]
         if len(rows) > 1:
-            err, rmse, fps = np.array(rows).T
+            err, rmse, fps, drift = np.array(rows).T
             print(
                 f"{name:16s} median of {len(rows)} seeds | centre err {np.median(err):.3f} % (max {err.max():.3f}) | "
-                f"rev RMSE {np.median(rmse):.2f} deg (max {rmse.max():.2f}) | {np.median(fps):.1f} fr/s",
+                f"rev RMSE {np.median(rmse):.2f} deg (max {rmse.max():.2f}) | last/first at most 1.5 on "
+                f"{int(np.sum(drift <= 1.5))} of {len(rows)} (max {drift.max():.2f}) | {np.median(fps):.1f} fr/s",
                 flush=True,
             )
 
