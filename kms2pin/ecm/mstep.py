@@ -69,6 +69,8 @@ NATIVE = _NATIVE_ENABLED
 
 #: ``h`` beyond which the logistic edge counts as saturated (σ(-7) < 1e-3).
 H_CUT = 7.0
+#: pixels a body's box is grown by beyond its edge (h = -H_CUT)
+SLACK_PX = 2.0
 
 _WORLD_RAYS: weakref.WeakKeyDictionary[Camera, np.ndarray] = weakref.WeakKeyDictionary()
 
@@ -122,7 +124,7 @@ def body_image(
     inner: np.ndarray,
     delta_px: float,
     *,
-    slack_px: float = 2.0,
+    slack_px: float = SLACK_PX,
     max_pixels: int = 6000,
 ) -> BodyImage | None:
     """The region of one body in one camera (None if it is not in view)."""
@@ -151,7 +153,7 @@ def body_images(
     inners: Sequence[np.ndarray],
     delta_px: float,
     *,
-    slack_px: float = 2.0,
+    slack_px: float = SLACK_PX,
     max_pixels: int = 6000,
     arrays: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[BodyImage | None]:

@@ -30,6 +30,7 @@ import csv
 import os
 import time
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -826,7 +827,7 @@ class Tracker:
         give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
         path (straddling the camera plane or degenerate)."""
         n = len(Rs)
-        status, boxes, delta = _mstep._boxes(cam, Rs, ts, np.asarray(self.inner), delta_px, 2.0)
+        status, boxes, delta = _mstep._boxes(cam, Rs, ts, np.asarray(self.inner), delta_px, _mstep.SLACK_PX)
         if (status == 1).any():
             return None
         seen = status == 2
@@ -1022,11 +1023,7 @@ class Tracker:
             self._alts.clear()
             return res
         flags = tuple(f"empty mask in camera {c}" for c, e in enumerate(empty) if e)
-        cams_saved = self.cameras
-        if flags:
-            self.cameras = [c for c, e in zip(cams_saved, empty) if not e]
-            masks = [m for m, e in zip(masks, empty) if not e]
-        try:
+        with self._cameras_seeing(masks) as masks:
             if self.calibrate_sizes and not self._calibrated:
                 self.calibrate(masks, source)
             q = self.q.copy()
@@ -1045,8 +1042,6 @@ class Tracker:
             if fit == 0.0:  # the model's silhouettes miss the masks: nothing to go on
                 q = self.q.copy()
                 flags += ("lost: kept the last pose",)
-        finally:
-            self.cameras = cams_saved
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         # a poorly fitting pose is no basis for a velocity: coasting on it carries a lost
         # track out of the view
@@ -1202,19 +1197,24 @@ class Tracker:
         no alternative hypotheses), leaving the tracker as it was; returns the
         configuration and its fit (IoU).  E.g. to compare a pose found by a search with
         the tracked one before restarting from it."""
-        masks = self._masks(masks, source)
-        keep = [c for c, m in zip(self.cameras, masks) if m.any()]
-        masks = [m for m in masks if m.any()]
-        if not masks:
-            return np.array(q, dtype=float), 0.0
-        cams_saved, anchor = self.cameras, self._anchor
-        self.cameras = keep
-        try:
+        with self._cameras_seeing(self._masks(masks, source)) as masks:
+            if not masks:
+                return np.array(q, dtype=float), 0.0
             timings = {"e_step": 0.0, "m_step": 0.0, "static_update": 0.0}
             q_new, _, _ = self._ecm(self.robot.clamp(np.array(q, dtype=float)), masks, timings, coarse=self._coarse(masks))
             return q_new, self._iou(q_new, masks)
+
+    @contextmanager
+    def _cameras_seeing(self, masks: Sequence[np.ndarray]):
+        """Within: :attr:`cameras` are only those whose mask is not empty; yields their
+        masks.  The cameras are restored on leaving, also on an error."""
+        saved = self.cameras
+        seen = [m.any() for m in masks]
+        self.cameras = [c for c, s in zip(saved, seen) if s]
+        try:
+            yield [m for m, s in zip(masks, seen) if s]
         finally:
-            self.cameras, self._anchor = cams_saved, anchor
+            self.cameras = saved
 
     def restart(self, q0) -> None:
         """Go on from ``q0`` as from a first frame's pose (no velocity, no alternative
