@@ -369,7 +369,13 @@ class Tracker:
             world terms (half as many binned pixels).  The narrow-edge iterations that
             follow are at full resolution.  None: full resolution throughout.
         m_iterations: Gauss-Newton iterations of each body's M-step.
-        damping: M-step damping towards the primary pose, relative to the data.
+        damping: M-step damping towards the primary pose, relative to the largest
+            curvature of the body's data term.  A body the images hardly fix (an arm
+            over the trunk, a foot seen end-on, anything along one camera's viewing
+            ray) then stays near the pose the joints give it.  0.05 against 0.01, ten
+            noise seeds of the one-camera full body with the upright prior: median
+            centre error 2.5 % against 3.7 %, joint RMSE 10.6 against 13.4 deg; two
+            cameras, seeds 0-2: 0.32 % against 0.46 %.  0.1 was worse with one camera.
         stiffness_floor: least spring stiffness, as a fraction of the strongest body's.
         max_pixels: pixels per body and camera above which the M-step subsamples.
         static, static_iterations: static update with full 6x6 springs (``"full"``) or
@@ -465,7 +471,7 @@ class Tracker:
         delta_final: float = 0.7,
         coarse_delta_px: float | None = None,
         m_iterations: int = 2,
-        damping: float = 1e-2,
+        damping: float = 5e-2,
         stiffness_floor: float = 1e-2,
         max_pixels: int = 1_000_000,
         static: str = "full",

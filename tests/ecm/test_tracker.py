@@ -78,8 +78,14 @@ def test_single_frame_recovers_the_pose(name):
     qt = robot.random_configuration(rng, 20)
     cams = _cams(robot)
     q0 = _perturbed(robot, qt, rng)
-    tr = Tracker(robot, cams, q0=q0, max_iterations=10, calibrate_sizes=False)  # q0 is not the pose shown
-    r = tr.step(render(robot, qt, cams))
+    # ECM run to its fixed point: the default stop (0.2 deg, 0.25 px) is set for
+    # tracking, where a frame starts near its answer.  From this 8-degree start the
+    # full body's right forearm, which lies over the trunk in both views, crosses a
+    # plateau (0.16 deg and 0.23 px in one iteration, 16.8 deg off) before it moves on
+    # to 1.7 deg; the default stop ends the frame there.
+    tr = Tracker(robot, cams, q0=q0, max_iterations=40, tol_deg=0.02, tol_px=0.02, calibrate_sizes=False)
+    r = tr.step(render(robot, qt, cams))  # q0 is not the pose shown
+    assert r.converged
     before = centre_error(robot, q0, qt)
     after = centre_error(robot, r.q, qt)
     assert after < 0.5 and after < 0.2 * before
@@ -424,14 +430,14 @@ def test_the_mirror_image_looks_the_same_from_afar_and_is_an_involution():
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_mirror_hypothesis_brings_back_a_track_started_mirrored_in_one_view():
     """One camera, the walk's second turn (frames 178-210, from facing the camera to
     side-on), 5 % noise and 10 % size mismatch, the tracker started at the mirror image
     of the true pose (137 deg off; the same silhouette): with the mirror hypothesis it
-    switches and ends facing the true way on every noise seed; a single hypothesis
-    stays mirrored on some (measured: seeds 0 and 2 end 158 and 170 deg off, against
-    6 and 17 deg with it).
+    ends facing the true way on every noise seed, and it has switched to the mirror on
+    every seed where a single hypothesis stays mirrored (measured: seed 2 ends 174 deg
+    off with one hypothesis, 16 deg with both; on seed 0 the main hypothesis turns
+    through by itself, 2.5 deg, and on seed 1 ends 5.7 deg off against 4.8).
 
     (A track started at the true pose in the middle of the turn, frames 150-210, ends
     the right way round or mirrored about as often with the mirror hypothesis as
@@ -443,23 +449,27 @@ def test_mirror_hypothesis_brings_back_a_track_started_mirrored_in_one_view():
     cams = [Camera.default()]
     q0 = Tracker(robot, cams, q0=motion[0])._mirror(motion[0])
     assert _root_angle_deg(q0, motion[0]) > 120.0
-    final = {}
+    final, switched = {}, {}
     for seed in range(3):
         rng = np.random.default_rng(seed)
         data = [m for _, m in synthesize(robot, motion, cams, noise=0.05, size_mismatch=0.1, rng=rng)]
         for mirror in (True, False):
             tr = Tracker(robot, cams, q0=q0, mirror_hypothesis=mirror, calibrate_sizes=False)
             results = [tr.step(m) for m in data]
-            switched = any("switched to the mirror hypothesis" in f for r in results for f in r.flags)
-            assert switched == mirror or not switched
+            switched[seed, mirror] = any(
+                "switched to the mirror hypothesis" in f for r in results for f in r.flags
+            )
             final[seed, mirror] = _root_angle_deg(results[-1].q, motion[-1])
             if mirror:
-                assert switched
                 assert final[seed, mirror] < 20.0
-                # measured 2.2, 1.6 and 5.2 % (one view, sizes not calibrated); the
-                # mirrored ends are 14-23 % off
+                # measured 1.5, 0.9 and 5.3 % (one view, sizes not calibrated); the
+                # mirrored end is 12.6 % off
                 assert centre_error(robot, results[-1].q, motion[-1]) < 8.0
+    assert not any(switched[s, False] for s in range(3))
     assert max(final[s, False] for s in range(3)) > 90.0
+    for s in range(3):
+        if final[s, False] > 90.0:
+            assert switched[s, True]
 
 
 def test_image_motion_is_the_pinhole_displacement_of_the_outline_points():
