@@ -53,7 +53,8 @@ def test_synth_track_evaluate(tmp_path, cams2, capsys):
 def test_one_camera_options_reach_the_tracker(tmp_path):
     """One camera: the mirror and swap hypotheses are on by default;
     --no-mirror-hypothesis, --no-swap-hypothesis and --no-size-calibration turn them
-    off (meta.json records what ran), and the body sizes then stay the spec's."""
+    off (meta.json records what ran), and the body sizes then stay the spec's;
+    --binned-hypotheses tracks the hypotheses on binned masks."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
@@ -61,6 +62,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         "default": [],
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02",
                 "--upright", "0.1", "--up", "0", "0", "2"],
+        "binned": ["--binned-hypotheses"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -68,7 +70,10 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         meta = json.loads((out / "meta.json").read_text())
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]
-        if name == "default":
+        assert meta["binned_hypotheses"] == (name == "binned")
+        if name == "binned":
+            assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
+        elif name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
             assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
