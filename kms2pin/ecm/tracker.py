@@ -549,16 +549,17 @@ class Tracker:
         self.max_step = max_step
         self.poor_fit = float(poor_fit)
         self.max_prediction = np.radians(float(max_prediction_deg))
-        self.inner = [np.array(robot.inner(b), dtype=float) for b in robot.bodies]
-        self.outer = [np.array(robot.outer(b), dtype=float) for b in robot.bodies]
+        # (n_bodies, 3) semi-axes, the spec's times the measured scales
+        self.inner = np.array([robot.inner(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
+        self.outer = np.array([robot.outer(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
         self.scales = np.ones((len(robot.bodies), 3))
         if scales is not None:
             sc = np.asarray(scales, dtype=float)
             if sc.shape != self.scales.shape or not np.all(sc > 0):
                 raise ValueError(f"scales must be positive, shape {self.scales.shape}; got shape {sc.shape}")
             self.scales = sc.copy()
-            self.inner = [li * f for li, f in zip(self.inner, sc)]
-            self.outer = [lo * f for lo, f in zip(self.outer, sc)]
+            self.inner = self.inner * sc
+            self.outer = self.outer * sc
         self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
         self._calibrated = False
         self._alts: dict[str, list] = {}  # alternative hypotheses: kind -> [q, previous q, score, fit]
@@ -662,7 +663,7 @@ class Tracker:
         """World points (n_bodies * 7, 3) that outline the bodies at ``q``: each inner
         ellipsoid's centre and the two ends of each of its axes."""
         _, R, t = self._body_poses(q)  # (n, 3, 3), (n, 3)
-        ends = R * np.asarray(self.inner)[:, None, :]  # (n, 3, 3): column k = axis k's half length
+        ends = R * self.inner[:, None, :]  # (n, 3, 3): column k = axis k's half length
         pts = np.concatenate([t[:, None], t[:, None] + ends.transpose(0, 2, 1), t[:, None] - ends.transpose(0, 2, 1)], 1)
         return pts.reshape(-1, 3)
 
@@ -704,8 +705,8 @@ class Tracker:
         """
         masks = self._masks(masks, source)
         q = self.q if q is None else np.asarray(q, dtype=float)
-        base_in = [li / s for li, s in zip(self.inner, self.scales)]
-        base_out = [lo / s for lo, s in zip(self.outer, self.scales)]
+        base_in = self.inner / self.scales
+        base_out = self.outer / self.scales
         delta = self.delta_start
         for _ in range(max(1, self.size_iterations)):
             poses, views = self.e_step(q, masks, delta)
@@ -772,7 +773,7 @@ class Tracker:
         poses, Rs, ts = self._body_poses(q)
         native = _mstep.NATIVE
         if native:  # every body's metric A = R diag(L^-2) R^T, in one go
-            As = (Rs / np.asarray(self.inner)[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
+            As = (Rs / self.inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
         # sharp silhouettes, their union per camera, what the others explain
         images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
         views: list[list[BodyView]] = [[] for _ in range(n)]
@@ -844,7 +845,7 @@ class Tracker:
         give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
         path (straddling the camera plane or degenerate)."""
         n = len(Rs)
-        status, boxes, delta = _mstep._boxes(cam, Rs, ts, np.asarray(self.inner), delta_px, _mstep.SLACK_PX)
+        status, boxes, delta = _mstep._boxes(cam, Rs, ts, self.inner, delta_px, _mstep.SLACK_PX)
         if (status == 1).any():
             return None
         seen = status == 2
@@ -915,7 +916,7 @@ class Tracker:
         model, data = robot.model, robot.data
         n, nv = len(fits), model.nv
         S = np.ones((n, 6))
-        S[:, :3] = np.asarray(self.inner).mean(axis=1)[:, None]
+        S[:, :3] = self.inner.mean(axis=1)[:, None]
         Hf = np.array([f.hessian for f in fits])  # (n, 6, 6)
         hmax = float((np.einsum("nii->ni", Hf) * S**2).max())
         if hmax <= 0:
@@ -927,6 +928,9 @@ class Tracker:
         native = _mstep.NATIVE
         K36 = K.reshape(n, 36)
         limited = robot.has_limits
+        if limited:
+            qi, vi = self._limited
+            lo, hi = robot.lower_limits[qi] + 1e-12, robot.upper_limits[qi] - 1e-12
         priors = {}  # the priors' stiffnesses, fixed at the first configuration's springs
 
         def springs(q):
@@ -969,10 +973,7 @@ class Tracker:
                 # step is solved for the others (projected Gauss-Newton's active set): its
                 # clipped step need not lower the energy
                 blocked = np.zeros(nv, dtype=bool)
-                qi, vi = self._limited
-                blocked[vi] = ((q[qi] <= robot.lower_limits[qi] + 1e-12) & (dq[vi] < 0)) | (
-                    (q[qi] >= robot.upper_limits[qi] - 1e-12) & (dq[vi] > 0)
-                )
+                blocked[vi] = ((q[qi] <= lo) & (dq[vi] < 0)) | ((q[qi] >= hi) & (dq[vi] > 0))
                 if blocked.any():
                     free = ~blocked
                     dq = np.zeros(nv)
