@@ -46,10 +46,16 @@ Pipeline, per frame:
    the colour test stands).
 5. **Clean-up** of every mask: shadows dropped; morphological opening
    (elliptical ``open_size`` kernel, default 3x3) removes speckle, closing
-   (``close_size``, default 5x5) bridges small gaps; connected components
+   (``close_size``, default 3x3) bridges small gaps; connected components
    smaller than ``min_blob_area`` pixels are removed (default 0.1 % of the
    image, 77 px at 320x240); holes inside the silhouette (background regions
-   not connected to the image border) are filled (``fill_holes``).
+   not connected to the image border) are filled (``fill_holes``).  A 5x5
+   closing (the earlier default) also fills the gaps between an arm and the
+   trunk: tracking the full body's segmented diagonal walk (two cameras, started
+   from the true pose) gave 3.98, 2.15, 2.23 and 3.26 % mean body-centre error on
+   four clips, against 1.72, 1.84, 2.09 and 1.28 % with 3x3; the lower body's clip
+   1.10 against 1.11 %.  On the test videos the median IoU with the true
+   silhouettes rose by 0.002-0.004.
 
 With ``learn_frames=0`` the model starts empty and learns online (OpenCV's
 own schedule) - early masks are then poor.
@@ -84,7 +90,7 @@ class SegmentParams:
     learning_rate: float | None = None  # None: 1/history
     min_blob_area: int | None = None  # None: 0.1 % of the image
     open_size: int = 3
-    close_size: int = 5
+    close_size: int = 3
     fill_holes: bool = True
     detect_shadows: bool = True
     bootstrap_diff: float = 30.0
