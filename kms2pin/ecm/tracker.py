@@ -775,7 +775,7 @@ class Tracker:
         if native:  # every body's metric A = R diag(L^-2) R^T, in one go
             As = (Rs / self.inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
         # sharp silhouettes, their union per camera, what the others explain
-        images: list[list] = [[None] * len(self.cameras) for _ in range(n)]
+        images: list[list] = [[None] * len(cameras) for _ in range(n)]
         views: list[list[BodyView]] = [[] for _ in range(n)]
         widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
         for c, (cam, mask) in enumerate(zip(cameras, masks)):
@@ -927,9 +927,9 @@ class Tracker:
         st = _structure(robot)
         native = _mstep.NATIVE
         K36 = K.reshape(n, 36)
-        limited = robot.has_limits
+        qi, vi = self._limited
+        limited = len(qi) > 0
         if limited:
-            qi, vi = self._limited
             lo, hi = robot.lower_limits[qi] + 1e-12, robot.upper_limits[qi] - 1e-12
         priors = {}  # the priors' stiffnesses, fixed at the first configuration's springs
 

@@ -114,7 +114,8 @@ class Reacquisition:
                 self._good(result)
             return tracker, result, None
         self.frames_back += 1
-        if inside and result.fit >= target and self.attempts >= self.searches:
+        fits = inside and result.fit >= target
+        if fits and self.attempts >= self.searches:
             # it fits, and searches have been tried since the subject came back
             self._good(result)
             return tracker, result, None
@@ -133,7 +134,7 @@ class Reacquisition:
         # the search's pose refined by ECM, against the tracked one
         q_found, fit_found = tracker.refine(found.q, masks, source)
         if fit_found <= result.fit:
-            if inside and result.fit >= target and self.attempts >= self.searches:
+            if fits and self.attempts >= self.searches:
                 self._good(result)
             return tracker, result, None
         # the same subject, tracked the same way: its options, the body sizes measured at

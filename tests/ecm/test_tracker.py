@@ -478,7 +478,6 @@ def test_mirror_hypothesis_brings_back_a_track_started_mirrored_in_one_view():
             assert switched[s, True]
 
 
-
 def test_binned_hypotheses_track_the_alternatives_on_binned_masks():
     """binned_hypotheses: every ECM iteration of an alternative hypothesis runs on the
     cameras binned 2x2 (half the width and height), the main one's at full resolution;
