@@ -71,6 +71,10 @@ CASES = {
     # pelvis keeps its starting tilt, and turns happen about the vertical
     "lowerbody-upright-1cam": ("anatomical/lowerbody", "walk", 1, {"upright": 0.1}),
     "fullbody-upright-1cam": ("anatomical/fullbody", "walk", 1, {"upright": 0.1}),
+    # and the rest prior (Tracker(rest_prior=...)): the joints the one view does not fix,
+    # such as a hidden arm's, are held near the rest pose
+    "lowerbody-prior-1cam": ("anatomical/lowerbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
+    "fullbody-prior-1cam": ("anatomical/fullbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
 }
 
 

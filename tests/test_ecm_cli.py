@@ -61,7 +61,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     runs = {
         "default": [],
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02",
-                "--upright", "0.1", "--up", "0", "0", "2"],
+                "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
         "binned": ["--binned-hypotheses"],
     }
     for name, flags in runs.items():
@@ -76,10 +76,12 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         elif name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
             assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
+            assert meta["rest_prior"] == 0.0
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
             assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
             assert meta["depth_prior"] == 0.02 and meta["upright"] == 0.1 and meta["up"] == [0.0, 0.0, 1.0]
+            assert meta["rest_prior"] == 0.01
             np.testing.assert_array_equal(scales, 1.0)
 
 
@@ -163,7 +165,9 @@ def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path,
     assert not out.exists()
 
 
-@pytest.mark.parametrize("flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"]])
+@pytest.mark.parametrize(
+    "flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"], ["--rest-prior", "-0.01"]]
+)
 def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, flags):
     out = tmp_path / "out"
     argv = ["track", str(SPECS / "lowerbody.kms"), "--masks", str(tmp_path), *flags, "-o", str(out)]

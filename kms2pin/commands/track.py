@@ -87,6 +87,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default 0: off; 0.1 for people walking, seen by one camera)")
     p.add_argument("--up", type=float, nargs=3, default=(0.0, 1.0, 0.0), metavar=("X", "Y", "Z"),
                    help="the world's vertical for --upright (default 0 1 0)")
+    p.add_argument("--rest-prior", type=_non_negative, default=0.0, metavar="K",
+                   help="a spring pulling every joint angle towards the spec's rest pose, K times the "
+                        "joints' mean stiffness (default 0: off; 0.01 for people walking, seen by one "
+                        "camera: it holds the joints the images do not fix, e.g. a hidden arm's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
@@ -293,7 +297,7 @@ def run(args: argparse.Namespace) -> int:
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
-        depth_prior=args.depth_prior, upright=args.upright, up=up,
+        depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -304,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
             "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
             "swap_hypothesis": tracker.swap_hypothesis, "binned_hypotheses": tracker.binned_hypotheses,
             "depth_prior": tracker.depth_prior,
-            "upright": tracker.upright, "up": tracker.up.tolist(),
+            "upright": tracker.upright, "up": tracker.up.tolist(), "rest_prior": tracker.rest_prior,
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]

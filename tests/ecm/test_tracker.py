@@ -640,6 +640,81 @@ def test_upright_spring_is_the_gradient_of_its_energy_and_free_about_the_vertica
             Tracker(robot, _cams(robot, 1), **bad)
 
 
+def test_rest_prior_spring_is_the_gradient_of_its_energy():
+    """The rest prior adds to the static update the gradient and Hessian of
+    E = k/2 sum_j (q_j - rest_j)^2 over the joint angles (radians), nothing on the root."""
+    robot = _robot("fullbody")
+    tr = Tracker(robot, _cams(robot, 1), rest_prior=0.01, calibrate_sizes=False)
+    nv, k = robot.model.nv, 0.7
+    angles = [robot.model.joints[j].idx_q for j in range(2, robot.model.njoints)]  # every joint but the root
+
+    def energy(q):
+        return 0.5 * k * float(np.sum((q[angles] - robot.q_rest[angles]) ** 2))
+
+    rng = np.random.default_rng(3)
+    q = robot.random_configuration(rng, 30)
+    A, g = np.zeros((nv, nv)), np.zeros(nv)
+    assert tr._rest_spring(A, g, q, k) == pytest.approx(energy(q), rel=1e-12)
+    eps = 1e-6
+    fd = [(energy(pin.integrate(robot.model, q, eps * e)) - energy(pin.integrate(robot.model, q, -eps * e))) / (2 * eps)
+          for e in np.eye(nv)]
+    np.testing.assert_allclose(g, fd, atol=1e-7)
+    assert np.all(g[:6] == 0) and np.abs(g[6:]).min() > 0
+    np.testing.assert_array_equal(A, np.diag(np.r_[np.zeros(6), np.full(nv - 6, k)]))
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="rest_prior"):
+            Tracker(robot, _cams(robot, 1), rest_prior=bad)
+
+
+def test_static_update_with_the_rest_prior_is_the_equilibrium_of_springs_and_prior():
+    """With M-step poses at a configuration q_t and the rest prior on, the static update
+    ends in equilibrium (virtual work, B^T Q = 0, eq. 2.28): the springs' generalized
+    forces, Q_i = -K_i e_i with e_i = (t_i - t'_i, log(R_i R'_i^T)) mapped by Pinocchio's
+    frame Jacobians of the body centres, are zero on the root and k (q_j - rest_j) on
+    every joint, with one k for all joints.  Without the prior it ends at q_t."""
+    from kms2pin.ecm.mstep import BodyFit
+
+    robot = _robot("lowerbody")
+    model, data, nv = robot.model, robot.data, robot.model.nv
+    rng = np.random.default_rng(5)
+    q_t = robot.q_rest.copy()
+    angles = [model.joints[j].idx_q for j in range(2, model.njoints)]
+    q_t[angles] += rng.uniform(-0.4, 0.4, len(angles))
+    targets = robot.body_poses(q_t)
+    H = []
+    for _ in targets:
+        B = rng.normal(size=(6, 6))
+        H.append(B @ B.T + 6 * np.eye(6))
+
+    def force(q):
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        out = np.zeros(nv)
+        for f, T, h in zip(robot.frame_ids, targets, H):
+            P = data.oMf[f]
+            e = np.r_[P.translation - T.translation, pin.log3(P.rotation @ T.rotation.T)]
+            J = pin.getFrameJacobian(model, data, f, pin.LOCAL_WORLD_ALIGNED)
+            out -= J.T @ h @ e
+        return out
+
+    for prior in (0.0, 0.05):
+        tr = Tracker(robot, _cams(robot, 1), rest_prior=prior, stiffness_floor=0.0, static_iterations=60,
+                     calibrate_sizes=False)
+        q = tr._static_update_full(q_t.copy(), [BodyFit(P, h.copy(), 0.0, 0.0) for P, h in zip(targets, H)])
+        if prior == 0.0:
+            np.testing.assert_allclose(q, q_t, atol=1e-9)
+            continue
+        Q = force(q)
+        d = q[angles] - robot.q_rest[angles]
+        assert np.abs(Q[:6]).max() < 1e-7 * np.abs(Q).max()
+        k = Q[6:] / d  # the prior's stiffness, the same for every joint
+        np.testing.assert_allclose(k, np.median(k), rtol=1e-6)
+        assert np.median(k) > 0
+        # the prior pulls the joints as a whole towards rest (each one need not move so:
+        # the springs couple them)
+        assert np.linalg.norm(d) < np.linalg.norm(q_t[angles] - robot.q_rest[angles])
+
+
 def test_upright_prior_tracks_a_turn_that_one_camera_loses():
     """The full body with joint limits seen by one camera through the walk's second
     turn, from the true pose on clean silhouettes.  Without the prior the pelvis pitches
