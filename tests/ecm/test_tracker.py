@@ -11,6 +11,7 @@ import pytest
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
+from kms2pin.ecm.mstep import BodyFit
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from kms2pin.errors import CameraError, InputDataError
@@ -672,8 +673,6 @@ def test_static_update_with_the_rest_prior_is_the_equilibrium_of_springs_and_pri
     forces, Q_i = -K_i e_i with e_i = (t_i - t'_i, log(R_i R'_i^T)) mapped by Pinocchio's
     frame Jacobians of the body centres, are zero on the root and k (q_j - rest_j) on
     every joint, with one k for all joints.  Without the prior it ends at q_t."""
-    from kms2pin.ecm.mstep import BodyFit
-
     robot = _robot("lowerbody")
     model, data, nv = robot.model, robot.data, robot.model.nv
     rng = np.random.default_rng(5)
