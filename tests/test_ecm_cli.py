@@ -51,8 +51,8 @@ def test_synth_track_evaluate(tmp_path, cams2, capsys):
 
 
 def test_one_camera_options_reach_the_tracker(tmp_path):
-    """One camera: the mirror and swap hypotheses are on by default;
-    --no-mirror-hypothesis, --no-swap-hypothesis and --no-size-calibration turn them
+    """One camera: the mirror and swap hypotheses and the limb search are on by default;
+    --no-mirror-hypothesis, --no-swap-hypothesis, --no-limb-search and --no-size-calibration turn them
     off (meta.json records what ran), and the body sizes then stay the spec's;
     --binned-hypotheses tracks the hypotheses on binned masks."""
     d = tmp_path / "m"
@@ -60,7 +60,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
     runs = {
         "default": [],
-        "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-size-calibration", "--depth-prior", "0.02",
+        "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
+                "--depth-prior", "0.02",
                 "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
         "binned": ["--binned-hypotheses"],
     }
@@ -75,11 +76,13 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
+            assert meta["limb_search"]
             assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
             assert meta["rest_prior"] == 0.0
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
             assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
+            assert not meta["limb_search"]
             assert meta["depth_prior"] == 0.02 and meta["upright"] == 0.1 and meta["up"] == [0.0, 0.0, 1.0]
             assert meta["rest_prior"] == 0.01
             np.testing.assert_array_equal(scales, 1.0)

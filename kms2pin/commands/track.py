@@ -74,6 +74,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with one camera and a model with joint limits, do not also track the pose with "
                         "left and right swapped (it tells the legs apart after a side-on view; one more "
                         "ECM a frame)")
+    p.add_argument("--no-limb-search", action="store_true",
+                   help="with one camera, do not swing a limb the other way when a frame's fit falls "
+                        "behind the running fit (an arm stuck on the wrong side of the trunk)")
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")
@@ -298,6 +301,7 @@ def run(args: argparse.Namespace) -> int:
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
+        limb_search=False if args.no_limb_search else None,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -306,7 +310,8 @@ def run(args: argparse.Namespace) -> int:
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
             "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
-            "swap_hypothesis": tracker.swap_hypothesis, "binned_hypotheses": tracker.binned_hypotheses,
+            "swap_hypothesis": tracker.swap_hypothesis, "limb_search": tracker.limb_search,
+            "binned_hypotheses": tracker.binned_hypotheses,
             "depth_prior": tracker.depth_prior,
             "upright": tracker.upright, "up": tracker.up.tolist(), "rest_prior": tracker.rest_prior,
         }
