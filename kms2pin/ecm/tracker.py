@@ -348,26 +348,13 @@ def limb_joints(robot: Robot) -> list[str]:
     the hips, the waist and the shoulders of ``specs/fullbody.kms``.  Joints on the
     world (``root="spec"``) are not limbs: the root is not swung."""
     m = robot.model
-    children = [0] * m.njoints
-    for j in range(1, m.njoints):
-        children[m.parents[j]] += 1
-    out = []
-    for j in range(1, m.njoints):
-        p = m.parents[j]
-        if m.joints[j].nq != 1 or p == 0:
-            continue
-        if m.joints[p].nq == 7 or children[p] >= 2:
-            out.append(m.names[j])
-    return out
-
-
-def _subtree(model, j: int) -> list[int]:
-    """Joint ``j`` and every joint below it."""
-    out = [j]
-    for k in range(j + 1, model.njoints):
-        if model.parents[k] in out:
-            out.append(k)
-    return out
+    return [
+        m.names[j]
+        for j in range(1, m.njoints)
+        if m.joints[j].nq == 1
+        and (p := m.parents[j]) != 0
+        and (m.joints[p].nq == 7 or len(m.children[p]) >= 2)
+    ]
 
 
 class Tracker:
@@ -526,7 +513,9 @@ class Tracker:
             full-body walk with limits, the upright and the rest prior, ten seeds:
             median centre error 1.9 % (at most 3.1) against 2.6 % (3.2), joint RMSE
             6.7 deg (8.5) against 8.2 (9.8), at 0.79x the frames/s.  A larger drop
-            (0.02, 0.025) fired on half or a third as many frames but lost most of the gain.
+            (0.02, 0.025) fired on half or a third as many frames but, on seeds 0-6, kept
+            only about a third of the gain (medians 2.4 % and 2.3 % against 1.9 % and,
+            without the search, 2.6 %).
     """
 
     def __init__(
@@ -600,12 +589,13 @@ class Tracker:
             limb_search = len(self.cameras) == 1
         self.limb_search = bool(limb_search)
         self.limb_search_drop = float(limb_search_drop)
-        # limbs: (joint name, q index, q indices of the joints below it)
-        self._limbs = []
+        # limbs: joint name -> (its q index, q indices of the revolute joints below it)
+        m = robot.model
+        self._limbs = {}
         for name in limb_joints(robot):
-            j = robot.model.getJointId(name)
-            below = [robot.model.joints[k].idx_q for k in _subtree(robot.model, j)[1:] if robot.model.joints[k].nq == 1]
-            self._limbs.append((name, robot.model.joints[j].idx_q, np.array(below, dtype=int)))
+            j = m.getJointId(name)
+            below = [m.joints[k].idx_q for k in m.subtrees[j][1:] if m.joints[k].nq == 1]
+            self._limbs[name] = (m.joints[j].idx_q, np.array(below, dtype=int))
         self._scratch: dict[tuple, np.ndarray] = {}  # per camera and size: the E-step's union image (_zeroed)
         self._fk: tuple | None = None  # _body_poses' last configuration and poses
         self._anchor: np.ndarray | None = None  # the root's position at the frame's start (depth_prior)
@@ -1150,7 +1140,7 @@ class Tracker:
                 if limb:
                     flags += (f"swung '{limb}' the other way",)
                     # no velocity for the swung limb: the swing is no motion to carry on
-                    iq, below = next((i, b) for n, i, b in self._limbs if n == limb)
+                    iq, below = self._limbs[limb]
                     self.q[iq], self.q[below] = q[iq], q[below]
             if self.mirror_hypothesis or self.swap_hypothesis:
                 q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse)
@@ -1321,7 +1311,7 @@ class Tracker:
         (an arm swung back over the trunk is often bent there too)."""
         rest = self.robot.q_rest
         out = []
-        for name, iq, below in self._limbs:
+        for name, (iq, below) in self._limbs.items():
             if abs(q[iq] - rest[iq]) < _LIMB_MIN:
                 continue
             c = q.copy()
@@ -1349,8 +1339,9 @@ class Tracker:
             screened.append((self._iou(qc, masks), name, qc))
         screened.sort(key=lambda x: -x[0])
         out = (q, fit, "")
+        coarse = self._coarse(masks)
         for _, name, qc in screened[:_LIMB_REFINED]:
-            qc, _, _ = self._ecm(qc, masks, timings, coarse=self._coarse(masks))
+            qc, _, _ = self._ecm(qc, masks, timings, coarse=coarse)
             fc = self._iou(qc, masks)
             if fc > out[1] + _LIMB_GAIN:
                 out = (qc, fc, name)
