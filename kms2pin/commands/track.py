@@ -76,7 +76,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "ECM a frame)")
     p.add_argument("--no-limb-search", action="store_true",
                    help="with one camera, do not swing a limb the other way when a frame's fit falls "
-                        "behind the running fit (an arm stuck on the wrong side of the trunk)")
+                        "behind the running fit (an arm stuck on the wrong side of the trunk), nor try "
+                        "twin limbs exchanged after they cross")
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")

@@ -62,7 +62,9 @@ class FrameResult:
             ``"poor fit (0.31)"`` (fit below the tracker's ``poor_fit``; the next frame
             is predicted without velocity), ``"lost: kept the last pose"`` (the model's
             silhouettes miss the masks entirely), ``"switched to the mirror
-            hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``.
+            hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
+            the limb search's ``"swung '<joint>' the other way"`` and ``"swapped
+            '<left joint>' and '<right joint>'"``.
         timings: seconds spent in the E-step, M-step and static update.
     """
 
@@ -330,6 +332,28 @@ def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
     return a, b
 
 
+def _twin_limbs(robot: Robot, limbs: Sequence[str]) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """The pairs of limbs that are left/right twins (``leftUpperArm_shoulder`` and
+    ``rightUpperArm_shoulder``), each as (left joint, right joint, q indices of the left
+    limb's revolute joints, of their right twins in the same order).  A pair whose joints
+    do not all have twins is left out."""
+    m = robot.model
+    q_index = {m.names[j].lower(): m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
+    pairs = []
+    for name in limbs:
+        twin = next((t for t in limbs if t.lower() == _twin(name.lower())), None)
+        if not name.lower().startswith("left") or twin is None:
+            continue
+        j = m.getJointId(name)
+        chain = [m.names[k].lower() for k in m.subtrees[j] if m.joints[k].nq == 1]
+        if not all(_twin(n) in q_index for n in chain):
+            continue
+        a = np.array([q_index[n] for n in chain], dtype=int)
+        b = np.array([q_index[_twin(n)] for n in chain], dtype=int)
+        pairs.append((name, twin, a, b))
+    return pairs
+
+
 _KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped"}
 _MERGE = np.radians(10.0)  # an alternative hypothesis this close to the main one is dropped
 #: limb search (``Tracker(limb_search=...)``): a joint closer to its rest angle than this
@@ -340,6 +364,11 @@ _LIMB_MIN = np.radians(5.0)
 _LIMB_GAIN = 0.003
 _LIMB_ITERATIONS = 3
 _LIMB_REFINED = 2
+#: twin limbs whose first joints come this close, or pass each other, have crossed
+#: (side-on, they overlap); for this many frames after, their exchange is tried
+_CROSS_DEG = np.radians(8.0)
+_CROSS_FRAMES = 4
+_LIMB_AND = " and "  # joins the two joints of a twin limbs' exchange
 
 
 def limb_joints(robot: Robot) -> list[str]:
@@ -516,6 +545,15 @@ class Tracker:
             (0.02, 0.025) fired on half or a third as many frames but, on seeds 0-6, kept
             only about a third of the gain (medians 2.4 % and 2.3 % against 1.9 % and,
             without the search, 2.6 %).
+            The search also exchanges twin limbs (``left*`` / ``right*``: the arms, the
+            legs), as a candidate of the search above and, on its own, on each of the
+            ``_CROSS_FRAMES`` frames after the twins cross (flag ``"swapped '<left>'
+            and '<right>'"``): side-on, as the arms come apart, one model arm can follow
+            the other's image while its twin stays hidden behind the trunk, and the fit
+            hardly falls.  On the same benchmark the exchange took the median centre
+            error from 1.9 % to 1.3 % (at most 1.9), the joint RMSE from 6.7 to 5.2 deg
+            (at most 6.3), and the seeds whose last 30 frames are at most 1.5x their
+            first 30 from four to eight of ten, at 0.78x the frames/s (seeds 0-4, alone).
     """
 
     def __init__(
@@ -596,6 +634,7 @@ class Tracker:
             j = m.getJointId(name)
             below = [m.joints[k].idx_q for k in m.subtrees[j][1:] if m.joints[k].nq == 1]
             self._limbs[name] = (m.joints[j].idx_q, np.array(below, dtype=int))
+        self._limb_pairs = _twin_limbs(robot, list(self._limbs))
         self._scratch: dict[tuple, np.ndarray] = {}  # per camera and size: the E-step's union image (_zeroed)
         self._fk: tuple | None = None  # _body_poses' last configuration and poses
         self._anchor: np.ndarray | None = None  # the root's position at the frame's start (depth_prior)
@@ -1137,11 +1176,10 @@ class Tracker:
             fit = self._iou(q, masks)
             if self.limb_search and self.frame > 0 and fit < self._score - self.limb_search_drop:
                 q, fit, limb = self._swing_limbs(q, fit, masks, timings)
-                if limb:
-                    flags += (f"swung '{limb}' the other way",)
-                    # no velocity for the swung limb: the swing is no motion to carry on
-                    iq, below = self._limbs[limb]
-                    self.q[iq], self.q[below] = q[iq], q[below]
+                flags += self._limbs_moved(q, limb)
+            if self.limb_search and self.frame > 0:
+                q, fit, limb = self._exchange_crossed_limbs(q, fit, masks, timings)
+                flags += self._limbs_moved(q, limb)
             if self.mirror_hypothesis or self.swap_hypothesis:
                 q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse)
                 if switched:
@@ -1299,6 +1337,51 @@ class Tracker:
                 del self._alts[kind]
         return q, fit, switched
 
+    def _exchange_crossed_limbs(
+        self, q: np.ndarray, fit: float, masks, timings: dict
+    ) -> tuple[np.ndarray, float, str]:
+        """Limb search after twin limbs cross: a pair whose first joints have come within
+        ``_CROSS_DEG`` of each other, or passed each other since the last frame, in the
+        last ``_CROSS_FRAMES`` frames (side-on, the two arms or legs overlap) gets its
+        exchange (:meth:`_limb_candidates`) tried by a frame's ECM iterations, kept if
+        its fit (IoU) beats ``fit`` by ``_LIMB_GAIN``.  As the limbs come apart, a model
+        limb can follow its twin's image while the other stays hidden behind the trunk;
+        the fit hardly falls, so the search on a falling fit does not see it.  Returns
+        as :meth:`_swing_limbs`."""
+        out = (q, fit, "")
+        for left, right, a, b in self._limb_pairs:
+            d, d_last = q[a[0]] - q[b[0]], self.q[a[0]] - self.q[b[0]]
+            if abs(d) < _CROSS_DEG or d * d_last < 0.0:
+                self._crossed[left] = self.frame
+            elif self.frame - self._crossed.get(left, -_CROSS_FRAMES - 1) <= _CROSS_FRAMES:
+                if np.abs(q[a] - q[b]).max() < _LIMB_MIN:
+                    continue
+                qc, _, _ = self._ecm(self._exchanged(q, a, b), masks, timings, coarse=self._coarse(masks))
+                fc = self._iou(qc, masks)
+                if fc > out[1] + _LIMB_GAIN:
+                    out = (qc, fc, left + _LIMB_AND + right)
+        return out
+
+    def _exchanged(self, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``q`` with the angles at q indices ``a`` and ``b`` (twin limbs) exchanged."""
+        c = q.copy()
+        c[a], c[b] = q[b], q[a]
+        return self.robot.clamp(c)
+
+    def _limbs_moved(self, q: np.ndarray, limb: str) -> tuple[str, ...]:
+        """After the limb search kept ``limb`` (a joint, or two joined by ``_LIMB_AND``)
+        in ``q``: take the moved limbs' velocity away (the move is no motion to carry on)
+        and return the frame's flag (none if ``limb`` is "")."""
+        if not limb:
+            return ()
+        moved = limb.split(_LIMB_AND)
+        for name in moved:
+            iq, below = self._limbs[name]
+            self.q[iq], self.q[below] = q[iq], q[below]
+        if len(moved) == 1:
+            return (f"swung '{limb}' the other way",)
+        return (f"swapped '{moved[0]}' and '{moved[1]}'",)
+
     def _running_fit(self, fit: float) -> None:
         """Fold this frame's fit into the main hypothesis's running fit (exponentially
         smoothed, weight ``hypothesis_smoothing`` on the new frame)."""
@@ -1308,9 +1391,15 @@ class Tracker:
     def _limb_candidates(self, q: np.ndarray) -> list[tuple[str, np.ndarray]]:
         """Each limb swung the other way: its first joint's angle reflected about the rest
         angle, once with the joints below kept and once with them put back at rest
-        (an arm swung back over the trunk is often bent there too)."""
+        (an arm swung back over the trunk is often bent there too).  And each pair of
+        left/right twin limbs exchanged (labelled ``"<left> and <right>"``): side-on, one
+        view hardly tells the arms apart, and after they cross one model arm can take
+        the other's image while its twin stays hidden behind the trunk."""
         rest = self.robot.q_rest
         out = []
+        for left, right, a, b in self._limb_pairs:
+            if np.abs(q[a] - q[b]).max() >= _LIMB_MIN:
+                out.append((left + _LIMB_AND + right, self._exchanged(q, a, b)))
         for name, (iq, below) in self._limbs.items():
             if abs(q[iq] - rest[iq]) < _LIMB_MIN:
                 continue
@@ -1324,11 +1413,14 @@ class Tracker:
         return out
 
     def _swing_limbs(self, q: np.ndarray, fit: float, masks, timings: dict) -> tuple[np.ndarray, float, str]:
-        """Limb search: try every limb swung the other way (:meth:`_limb_candidates`),
-        each screened by a few ECM iterations on the masks binned 2x2; the best two are
-        refined at full resolution, and the better is kept if its fit (IoU) beats ``fit``
-        by ``_LIMB_GAIN``.
-        Returns the configuration, its fit and the limb's joint ("" if none was kept)."""
+        """Limb search: try every limb swung the other way and every pair of twin limbs
+        exchanged (:meth:`_limb_candidates`), each screened by a few ECM iterations on
+        the masks binned 2x2; the best two swings and the best exchange are refined at
+        full resolution, and the best is kept if its fit (IoU) beats ``fit`` by
+        ``_LIMB_GAIN``.  (The exchanges do not compete with the swings for the
+        refinement: an exchange, both arms' images already explained, screens high.)
+        Returns the configuration, its fit and the limb's joint ("" if none was kept;
+        ``"<left> and <right>"`` for twin limbs exchanged)."""
         cands = self._limb_candidates(q)
         binned = self._binned_views(masks)
         if not cands or binned is None:
@@ -1338,9 +1430,11 @@ class Tracker:
             qc, _, _ = self._ecm(c, masks, timings, _LIMB_ITERATIONS, binned, binned=True)
             screened.append((self._iou(qc, masks), name, qc))
         screened.sort(key=lambda x: -x[0])
+        swings = [s for s in screened if _LIMB_AND not in s[1]][:_LIMB_REFINED]
+        exchanges = [s for s in screened if _LIMB_AND in s[1]][:1]
         out = (q, fit, "")
         coarse = self._coarse(masks)
-        for _, name, qc in screened[:_LIMB_REFINED]:
+        for _, name, qc in sorted(swings + exchanges, key=lambda x: -x[0]):
             qc, _, _ = self._ecm(qc, masks, timings, coarse=coarse)
             fc = self._iou(qc, masks)
             if fc > out[1] + _LIMB_GAIN:
@@ -1349,9 +1443,10 @@ class Tracker:
 
     def swing_limbs(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float, str]:
         """The limb search of ``limb_search`` on one frame: ECM from ``q`` (as
-        :meth:`refine`), then every limb swung the other way; the tracker is left as it
-        was.  Returns the configuration, its fit (IoU) and the joint of the limb swung
-        ("" if none improved the fit)."""
+        :meth:`refine`), then every limb swung the other way and every pair of twin
+        limbs exchanged; the tracker is left as it was.  Returns the configuration, its fit (IoU) and the joint of the limb swung
+        ("" if none improved the fit; ``"<left> and <right>"`` if twin limbs were
+        exchanged)."""
         with self._cameras_seeing(self._masks(masks, source)) as masks:
             if not masks:
                 return np.array(q, dtype=float), 0.0, ""
@@ -1410,6 +1505,7 @@ class Tracker:
         self.q = q0
         self._prev: np.ndarray | None = None
         self._alts.clear()
+        self._crossed: dict[str, int] = {}  # twin limbs (left joint) -> frame they last crossed
         self._score = 0.0
         self.frame = 0
 
