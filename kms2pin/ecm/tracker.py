@@ -547,10 +547,10 @@ class Tracker:
             without the search, 2.6 %).
             The search also exchanges twin limbs (``left*`` / ``right*``: the arms, the
             legs), as a candidate of the search above and, on its own, on each of the
-            ``_CROSS_FRAMES`` frames after the twins cross (flag ``"swapped '<left>'
-            and '<right>'"``): side-on, as the arms come apart, one model arm can follow
-            the other's image while its twin stays hidden behind the trunk, and the fit
-            hardly falls.  On the same benchmark the exchange took the median centre
+            four frames after the twins' first joints come within 8 deg of each other
+            or pass each other (flag ``"swapped '<left>' and '<right>'"``): side-on, as
+            the arms come apart, one model arm can follow the other's image while its
+            twin stays hidden behind the trunk, and the fit hardly falls.  On the same benchmark the exchange took the median centre
             error from 1.9 % to 1.3 % (at most 1.9), the joint RMSE from 6.7 to 5.2 deg
             (at most 6.3), and the seeds whose last 30 frames are at most 1.5x their
             first 30 from four to eight of ten, at 0.78x the frames/s (seeds 0-4, alone).
@@ -1444,9 +1444,9 @@ class Tracker:
     def swing_limbs(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float, str]:
         """The limb search of ``limb_search`` on one frame: ECM from ``q`` (as
         :meth:`refine`), then every limb swung the other way and every pair of twin
-        limbs exchanged; the tracker is left as it was.  Returns the configuration, its fit (IoU) and the joint of the limb swung
-        ("" if none improved the fit; ``"<left> and <right>"`` if twin limbs were
-        exchanged)."""
+        limbs exchanged; the tracker is left as it was.  Returns the configuration,
+        its fit (IoU) and the joint of the limb swung ("" if none improved the fit;
+        ``"<left> and <right>"`` if twin limbs were exchanged)."""
         with self._cameras_seeing(self._masks(masks, source)) as masks:
             if not masks:
                 return np.array(q, dtype=float), 0.0, ""
