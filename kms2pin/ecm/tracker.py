@@ -340,10 +340,8 @@ def _twin_limbs(robot: Robot, limbs: Sequence[str]) -> list[tuple[str, str, np.n
     m = robot.model
     q_index = {m.names[j].lower(): m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
     pairs = []
-    for name in limbs:
-        twin = next((t for t in limbs if t.lower() == _twin(name.lower())), None)
-        if not name.lower().startswith("left") or twin is None:
-            continue
+    for i, t in _left_right_pairs(limbs):
+        name, twin = limbs[i], limbs[t]
         j = m.getJointId(name)
         chain = [m.names[k].lower() for k in m.subtrees[j] if m.joints[k].nq == 1]
         if not all(_twin(n) in q_index for n in chain):
@@ -550,10 +548,11 @@ class Tracker:
             four frames after the twins' first joints come within 8 deg of each other
             or pass each other (flag ``"swapped '<left>' and '<right>'"``): side-on, as
             the arms come apart, one model arm can follow the other's image while its
-            twin stays hidden behind the trunk, and the fit hardly falls.  On the same benchmark the exchange took the median centre
-            error from 1.9 % to 1.3 % (at most 1.9), the joint RMSE from 6.7 to 5.2 deg
-            (at most 6.3), and the seeds whose last 30 frames are at most 1.5x their
-            first 30 from four to eight of ten, at 0.78x the frames/s (seeds 0-4, alone).
+            twin stays hidden behind the trunk, and the fit hardly falls.  On the same
+            benchmark the exchange took the median centre error from 1.9 % to 1.3 % (at
+            most 1.9), the joint RMSE from 6.7 to 5.2 deg (at most 6.3), and the seeds
+            whose last 30 frames are at most 1.5x their first 30 from four to eight of
+            ten, at 0.78x the frames/s (seeds 0-4, alone).
     """
 
     def __init__(
@@ -1349,21 +1348,27 @@ class Tracker:
         the fit hardly falls, so the search on a falling fit does not see it.  Returns
         as :meth:`_swing_limbs`."""
         out = (q, fit, "")
+        coarse = None
         for left, right, a, b in self._limb_pairs:
             d, d_last = q[a[0]] - q[b[0]], self.q[a[0]] - self.q[b[0]]
             if abs(d) < _CROSS_DEG or d * d_last < 0.0:
                 self._crossed[left] = self.frame
-            elif self.frame - self._crossed.get(left, -_CROSS_FRAMES - 1) <= _CROSS_FRAMES:
-                if np.abs(q[a] - q[b]).max() < _LIMB_MIN:
-                    continue
-                qc, _, _ = self._ecm(self._exchanged(q, a, b), masks, timings, coarse=self._coarse(masks))
-                fc = self._iou(qc, masks)
-                if fc > out[1] + _LIMB_GAIN:
-                    out = (qc, fc, left + _LIMB_AND + right)
+                continue
+            c = self._exchanged(q, a, b)
+            if c is None or self.frame - self._crossed.get(left, -_CROSS_FRAMES - 1) > _CROSS_FRAMES:
+                continue
+            coarse = coarse or self._coarse(masks)
+            qc, _, _ = self._ecm(c, masks, timings, coarse=coarse)
+            fc = self._iou(qc, masks)
+            if fc > out[1] + _LIMB_GAIN:
+                out = (qc, fc, left + _LIMB_AND + right)
         return out
 
-    def _exchanged(self, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """``q`` with the angles at q indices ``a`` and ``b`` (twin limbs) exchanged."""
+    def _exchanged(self, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """``q`` with the angles at q indices ``a`` and ``b`` (twin limbs) exchanged, or
+        None if no angle of theirs differs by ``_LIMB_MIN`` (nothing to exchange)."""
+        if np.abs(q[a] - q[b]).max() < _LIMB_MIN:
+            return None
         c = q.copy()
         c[a], c[b] = q[b], q[a]
         return self.robot.clamp(c)
@@ -1398,8 +1403,9 @@ class Tracker:
         rest = self.robot.q_rest
         out = []
         for left, right, a, b in self._limb_pairs:
-            if np.abs(q[a] - q[b]).max() >= _LIMB_MIN:
-                out.append((left + _LIMB_AND + right, self._exchanged(q, a, b)))
+            c = self._exchanged(q, a, b)
+            if c is not None:
+                out.append((left + _LIMB_AND + right, c))
         for name, (iq, below) in self._limbs.items():
             if abs(q[iq] - rest[iq]) < _LIMB_MIN:
                 continue
