@@ -1173,12 +1173,16 @@ class Tracker:
             coarse = self._coarse(masks)
             q, it, converged = self._ecm(q, masks, timings, coarse=coarse)
             fit = self._iou(q, masks)
+            moved = ()
             if self.limb_search and self.frame > 0 and fit < self._score - self.limb_search_drop:
                 q, fit, limb = self._swing_limbs(q, fit, masks, timings)
-                flags += self._limbs_moved(q, limb)
+                moved = self._limbs_moved(q, limb)
             if self.limb_search and self.frame > 0:
                 q, fit, limb = self._exchange_crossed_limbs(q, fit, masks, timings)
-                flags += self._limbs_moved(q, limb)
+                again = self._limbs_moved(q, limb)
+                # twins exchanged twice this frame are back in place: no exchange to report
+                moved = () if again and again == moved else moved + again
+            flags += moved
             if self.mirror_hypothesis or self.swap_hypothesis:
                 q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse)
                 if switched:

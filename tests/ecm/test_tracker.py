@@ -844,6 +844,30 @@ def test_arms_that_have_just_crossed_get_their_exchange_tried():
     assert not v.any()  # the exchange is no motion to carry on
 
 
+def test_twins_exchanged_back_in_the_same_frame_are_not_flagged(monkeypatch):
+    """The falling-fit search and the crossing's exchange can both exchange the same twin
+    limbs in one frame: the limbs are then back in place, and the frame says nothing of
+    an exchange.  Two different exchanges are both flagged."""
+    robot = load(DIR / "anatomical" / "fullbody.kms", root="free")
+    walk = make_motion(robot, "walk", 300)
+    cams = [Camera.default()]
+    arms = ("leftUpperArm_shoulder", "rightUpperArm_shoulder")
+    legs = ("leftThigh_hip", "rightThigh_hip")
+    flags = {}
+    for second in (arms, legs):
+        tr = Tracker(robot, cams, q0=walk[10], prediction="previous", calibrate_sizes=False,
+                     mirror_hypothesis=False, swap_hypothesis=False, limb_search_drop=-1.0)
+        tr.step(render(robot, walk[10], cams))
+        monkeypatch.setattr(tr, "_swing_limbs", lambda q, fit, *a: (q, fit, " and ".join(arms)))
+        monkeypatch.setattr(tr, "_exchange_crossed_limbs", lambda q, fit, *a, p=second: (q, fit, " and ".join(p)))
+        flags[second] = tr.step(render(robot, walk[11], cams)).flags
+    assert not any("swapped" in f for f in flags[arms])
+    assert [f for f in flags[legs] if "swapped" in f] == [
+        "swapped 'leftUpperArm_shoulder' and 'rightUpperArm_shoulder'",
+        "swapped 'leftThigh_hip' and 'rightThigh_hip'",
+    ]
+
+
 def test_a_frame_that_falls_behind_the_running_fit_gets_the_limb_search():
     """Tracking the walk with one camera from the truth, then a frame whose starting
     pose has the arm swung the wrong way (as after a bad prediction): its fit falls
