@@ -1,12 +1,19 @@
-"""ECM image geometry (thesis §2.1): cameras, ellipsoid images, densities, E-step.
+"""ECM tracking (thesis §2.1): cameras, ellipsoid images, densities, the E-step, and the
+tracker with its synthetic data and evaluation.
 
-Independent of the rest of kms2pin: bodies are ``(world_T_body, semi_axes)``
-given as ``pin.SE3`` and arrays.
+The image geometry (:mod:`~kms2pin.ecm.camera`, :mod:`~kms2pin.ecm.projection`,
+:mod:`~kms2pin.ecm.density`, :mod:`~kms2pin.ecm.estep`, :mod:`~kms2pin.ecm.raycast`)
+is independent of the rest of kms2pin: bodies are ``(world_T_body, semi_axes)`` given
+as ``pin.SE3`` and arrays.  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
+:class:`kms2pin.Robot`.
 """
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.density import body_depth, density_region, projected_density
 from kms2pin.ecm.estep import EStepResult, e_step
+from kms2pin.ecm.evaluate import evaluate
+from kms2pin.ecm.limbs import limb_joints
+from kms2pin.ecm.motions import MOTIONS, make_motion
 from kms2pin.ecm.projection import (
     BBox,
     Ellipse,
@@ -19,13 +26,21 @@ from kms2pin.ecm.projection import (
     inside_conic,
 )
 from kms2pin.ecm.raycast import render_labels, render_mask
+from kms2pin.ecm.synth import synthesize
+from kms2pin.ecm.tracker import Tracker
+from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 
 __all__ = [
     "BBox",
     "Camera",
     "EStepResult",
     "Ellipse",
+    "FrameResult",
+    "MOTIONS",
     "ProjectionError",
+    "Tracker",
+    "Trajectory",
+    "TrajectoryCsvWriter",
     "Visibility",
     "body_bbox",
     "body_depth",
@@ -34,8 +49,12 @@ __all__ = [
     "ellipse_parameters",
     "ellipsoid_conic",
     "ellipsoid_visibility",
+    "evaluate",
     "inside_conic",
+    "limb_joints",
+    "make_motion",
     "projected_density",
     "render_labels",
     "render_mask",
+    "synthesize",
 ]

@@ -26,12 +26,9 @@ for capture range, a narrow one for accuracy).
 
 from __future__ import annotations
 
-import csv
-import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -43,163 +40,12 @@ from ..robot import Robot
 from ..virtual_work import _structure, body_frames, static_update
 from . import mstep as _mstep
 from .camera import Camera
+from .limbs import left_right_joints, limb_joints, sagittal_mirror, twin_limbs
 from .mstep import BodyImage, BodyView, _geometry, body_images, fit_bodies, fit_body_scale, pose_arrays, world_rays
 from .projection import BBox, body_bbox
+from .trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 
-
-@dataclass(frozen=True)
-class FrameResult:
-    """One tracked frame.
-
-    Attributes:
-        q: configuration (Pinocchio ``q``).
-        body_poses: (n_bodies, 7) maximal coordinates [mu, theta0..3] at ``q``.
-        iterations: ECM iterations run.
-        fit: intersection over union of the model's inner silhouettes with the masks
-            (over all cameras).
-        converged: whether the configuration stopped changing within the limit.
-        flags: notes such as ``"empty mask"`` (pose kept from the previous frame),
-            ``"poor fit (0.31)"`` (fit below the tracker's ``poor_fit``; the next frame
-            is predicted without velocity), ``"lost: kept the last pose"`` (the model's
-            silhouettes miss the masks entirely), ``"switched to the mirror
-            hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
-            the limb search's ``"swung '<joint>' the other way"`` and ``"swapped
-            '<left joint>' and '<right joint>'"``.
-        timings: seconds spent in the E-step, M-step and static update.
-    """
-
-    q: np.ndarray
-    body_poses: np.ndarray
-    iterations: int
-    fit: float
-    converged: bool
-    flags: tuple[str, ...] = ()
-    timings: dict = field(default_factory=dict)
-
-
-class Trajectory:
-    """Tracked (or true) configurations over frames, with CSV/NPZ input and output.
-
-    The CSV has a ``frame`` column then one column per joint coordinate: revolute
-    joint angles in degrees named after the joint; a free-flyer root as
-    ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``.
-    """
-
-    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = (), scales=None):
-        self.robot = robot
-        self.q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
-        self.results = list(results)
-        #: (n_bodies, 3) semi-axis factors of the tracked model (:meth:`Tracker.calibrate`)
-        self.scales = None if scales is None else np.asarray(scales, dtype=float)
-
-    def __len__(self) -> int:
-        return len(self.q)
-
-    @staticmethod
-    def columns(robot: Robot) -> list[str]:
-        cols = []
-        for jid in range(1, robot.model.njoints):
-            j = robot.model.joints[jid]
-            name = robot.model.names[jid]
-            if j.nq == 7:
-                cols += ["root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw"]
-            elif j.nq == 1:
-                cols.append(name)
-            else:  # pragma: no cover - the compiler makes only these joints
-                cols += [f"{name}_{k}" for k in range(j.nq)]
-        return cols
-
-    def table(self) -> np.ndarray:
-        """(T, nq) with revolute angles in degrees (CSV units)."""
-        out = self.q.copy()
-        for jid in range(1, self.robot.model.njoints):
-            j = self.robot.model.joints[jid]
-            if j.nq == 1:
-                out[:, j.idx_q] = np.degrees(out[:, j.idx_q])
-        return out
-
-    def to_csv(self, path: str | os.PathLike) -> None:
-        extra = bool(self.results)
-        with open(path, "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["frame", *self.columns(self.robot), *(["fit", "flags"] if extra else [])])
-            for k, row in enumerate(self.table()):
-                tail = []
-                if extra:
-                    r = self.results[k]
-                    tail = [f"{r.fit:.4f}", ";".join(r.flags)]
-                w.writerow([k, *(f"{x:.10g}" for x in row), *tail])
-
-    def to_npz(self, path: str | os.PathLike) -> None:
-        """Body poses (T, n_bodies, 7) maximal coordinates, q (T, nq), body and joint names,
-        fits and the body-size factors (n_bodies, 3) the tracker used."""
-        poses = np.array([self.robot.maximal_coordinates(q) for q in self.q])
-        np.savez_compressed(
-            path,
-            q=self.q,
-            body_poses=poses,
-            bodies=np.array(self.robot.bodies),
-            joint_names=np.array(self.robot.joint_names),
-            fit=np.array([r.fit for r in self.results]) if self.results else np.zeros(0),
-            body_scales=np.ones((len(self.robot.bodies), 3)) if self.scales is None else self.scales,
-        )
-
-    @classmethod
-    def from_csv(cls, robot: Robot, path: str | os.PathLike) -> Trajectory:
-        """Read a trajectory CSV (as written by :meth:`to_csv` or ``kms2pin synth``)."""
-        try:
-            with open(path, newline="") as f:
-                rows = list(csv.reader(f))
-        except OSError as err:
-            raise InputDataError(f"{path}: cannot read: {err.strerror}") from None
-        if not rows:
-            raise InputDataError(f"{path}: empty trajectory file")
-        header = rows[0]
-        cols = cls.columns(robot)
-        missing = [c for c in cols if c not in header]
-        if missing:
-            raise InputDataError(
-                f"{path}: missing columns {', '.join(missing)} for '{robot.system.name}' "
-                f"(root={robot.root!r}); the file has {', '.join(header)}"
-            )
-        idx = [header.index(c) for c in cols]
-        q = np.empty((len(rows) - 1, robot.nq))
-        for k, row in enumerate(rows[1:]):
-            try:
-                q[k] = [float(row[i]) for i in idx]
-            except (ValueError, IndexError):
-                raise InputDataError(f"{path}:{k + 2}: malformed row") from None
-        for jid in range(1, robot.model.njoints):
-            j = robot.model.joints[jid]
-            if j.nq == 1:
-                q[:, j.idx_q] = np.radians(q[:, j.idx_q])
-        return cls(robot, q)
-
-
-class TrajectoryCsvWriter:
-    """Appends one :class:`Trajectory` CSV row per frame (flushed), so a crash or an
-    interruption leaves a complete file up to the last finished frame."""
-
-    def __init__(self, robot: Robot, path: str | os.PathLike):
-        self.robot = robot
-        self._f = open(path, "w", newline="")
-        self._w = csv.writer(self._f)
-        self._w.writerow(["frame", *Trajectory.columns(robot), "fit", "flags"])
-        self._f.flush()
-
-    def write(self, frame: int, result: FrameResult) -> None:
-        row = Trajectory(self.robot, result.q).table()[0]
-        self._w.writerow([frame, *(f"{x:.10g}" for x in row), f"{result.fit:.4f}", ";".join(result.flags)])
-        self._f.flush()
-
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> TrajectoryCsvWriter:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+__all__ = ["FrameResult", "Tracker", "Trajectory", "TrajectoryCsvWriter", "bin_mask", "clean_mask", "limb_joints"]
 
 
 def clean_mask(mask: np.ndarray) -> np.ndarray:
@@ -268,90 +114,6 @@ def _log_quat(qr: np.ndarray) -> np.ndarray:
     return v * scale[:, None]
 
 
-def _twin(name: str) -> str:
-    """The left/right twin of a lower-case name (``leftthigh`` <-> ``rightthigh``); itself if
-    it is neither."""
-    if name.startswith("left"):
-        return "right" + name[4:]
-    if name.startswith("right"):
-        return "left" + name[5:]
-    return name
-
-
-def _left_right_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
-    """Index pairs (left, right) of the names that are ``left*`` / ``right*`` twins,
-    compared in lower case."""
-    index = {n.lower(): i for i, n in enumerate(names)}
-    return [(i, index[_twin(n)]) for n, i in index.items() if n.startswith("left") and _twin(n) in index]
-
-
-def _sagittal_mirror(robot: Robot) -> np.ndarray | None:
-    """Reflection (3x3, root frame) through the model's left/right plane: its normal is
-    the mean offset of the ``left*`` bodies' centres from their ``right*`` twins at rest.
-    None if the model has no such pairs."""
-    pairs = _left_right_pairs(robot.bodies)
-    if not pairs:
-        return None
-    poses = robot.body_poses(robot.q_rest)
-    root = pin.XYZQUATToSE3(robot.q_rest[:7]) if robot.root == "free" else pin.SE3.Identity()
-    lateral = root.rotation.T @ np.mean([poses[i].translation - poses[j].translation for i, j in pairs], axis=0)
-    norm = float(np.linalg.norm(lateral))
-    if norm < 1e-9:
-        return None
-    lateral /= norm
-    return np.eye(3) - 2.0 * np.outer(lateral, lateral)
-
-
-def _left_right_joints(robot: Robot, sagittal: np.ndarray | None):
-    """(q indices of the ``left*`` joints, of their ``right*`` twins; names compared in lower
-    case), if exchanging their angles reflects the body through its own left/right plane
-    (``sagittal``, root frame): checked on the body centres at a random configuration.
-    None otherwise."""
-    if sagittal is None:
-        return None
-    m = robot.model
-    revolute = [j for j in range(1, m.njoints) if m.joints[j].nq == 1]
-    pairs = _left_right_pairs([m.names[j] for j in revolute])
-    if not pairs:
-        return None
-    a = np.array([m.joints[revolute[i]].idx_q for i, _ in pairs])
-    b = np.array([m.joints[revolute[j]].idx_q for _, j in pairs])
-    q = robot.q_rest.copy()
-    q[np.concatenate([a, b])] += np.random.default_rng(0).uniform(-0.5, 0.5, 2 * len(a))
-    swapped = q.copy()
-    swapped[a], swapped[b] = q[b], q[a]
-    root = pin.XYZQUATToSE3(q[:7]) if robot.root == "free" else pin.SE3.Identity()
-    centres = [np.array([root.actInv(M).translation for M in robot.body_poses(x)]) for x in (q, swapped)]
-    bodies = {n.lower(): i for i, n in enumerate(robot.bodies)}
-    twin = [bodies.get(_twin(n), -1) for n in bodies]
-    if min(twin) < 0:
-        return None
-    reflected = centres[0] @ sagittal.T
-    if np.abs(centres[1] - reflected[twin]).max() > 1e-6 * robot.height:
-        return None
-    return a, b
-
-
-def _twin_limbs(robot: Robot, limbs: Sequence[str]) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """The pairs of limbs that are left/right twins (``leftUpperArm_shoulder`` and
-    ``rightUpperArm_shoulder``), each as (left joint, right joint, q indices of the left
-    limb's revolute joints, of their right twins in the same order).  A pair whose joints
-    do not all have twins is left out."""
-    m = robot.model
-    q_index = {m.names[j].lower(): m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nq == 1}
-    pairs = []
-    for i, t in _left_right_pairs(limbs):
-        name, twin = limbs[i], limbs[t]
-        j = m.getJointId(name)
-        chain = [m.names[k].lower() for k in m.subtrees[j] if m.joints[k].nq == 1]
-        if not all(_twin(n) in q_index for n in chain):
-            continue
-        a = np.array([q_index[n] for n in chain], dtype=int)
-        b = np.array([q_index[_twin(n)] for n in chain], dtype=int)
-        pairs.append((name, twin, a, b))
-    return pairs
-
-
 _KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped"}
 _MERGE = np.radians(10.0)  # an alternative hypothesis this close to the main one is dropped
 #: limb search (``Tracker(limb_search=...)``): a joint closer to its rest angle than this
@@ -367,21 +129,6 @@ _LIMB_REFINED = 2
 _CROSS_DEG = np.radians(8.0)
 _CROSS_FRAMES = 4
 _LIMB_AND = " and "  # joins the two joints of a twin limbs' exchange
-
-
-def limb_joints(robot: Robot) -> list[str]:
-    """The revolute joints that start a limb: the first joint of every chain hanging off
-    a free root's body or off a body that branches (two or more joints below it), e.g.
-    the hips, the waist and the shoulders of ``specs/fullbody.kms``.  Joints on the
-    world (``root="spec"``) are not limbs: the root is not swung."""
-    m = robot.model
-    return [
-        m.names[j]
-        for j in range(1, m.njoints)
-        if m.joints[j].nq == 1
-        and (p := m.parents[j]) != 0
-        and (m.joints[p].nq == 7 or len(m.children[p]) >= 2)
-    ]
 
 
 class Tracker:
@@ -633,7 +380,7 @@ class Tracker:
             j = m.getJointId(name)
             below = [m.joints[k].idx_q for k in m.subtrees[j][1:] if m.joints[k].nq == 1]
             self._limbs[name] = (m.joints[j].idx_q, np.array(below, dtype=int))
-        self._limb_pairs = _twin_limbs(robot, list(self._limbs))
+        self._limb_pairs = twin_limbs(robot, list(self._limbs))
         self._scratch: dict[tuple, np.ndarray] = {}  # per camera and size: the E-step's union image (_zeroed)
         self._fk: tuple | None = None  # _body_poses' last configuration and poses
         self._anchor: np.ndarray | None = None  # the root's position at the frame's start (depth_prior)
@@ -687,13 +434,13 @@ class Tracker:
         if self._root_dofs:  # constants of the upright spring (_upright_spring)
             self._up_projector = np.eye(3) - np.outer(self._up_root, self._up_root)
             self._up_skew = pin.skew(self.up)
-        self._sagittal = _sagittal_mirror(robot) if robot.root == "free" else None
+        self._sagittal = sagittal_mirror(robot) if robot.root == "free" else None
         if mirror_hypothesis is None:
             mirror_hypothesis = len(self.cameras) == 1 and self._sagittal is not None
         if mirror_hypothesis and self._sagittal is None:
             raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
         self.mirror_hypothesis = bool(mirror_hypothesis)
-        self._swap_pairs = _left_right_joints(robot, self._sagittal)
+        self._swap_pairs = left_right_joints(robot, self._sagittal)
         if swap_hypothesis is None:
             # without joint limits a swapped leg finds a pose (a knee bent backwards) that
             # fits as well, and the swaps did more harm than good on the benchmark
