@@ -54,7 +54,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     """One camera: the mirror and swap hypotheses and the limb search are on by default;
     --no-mirror-hypothesis, --no-swap-hypothesis, --no-limb-search and --no-size-calibration turn them
     off (meta.json records what ran), and the body sizes then stay the spec's;
-    --binned-hypotheses tracks the hypotheses on binned masks."""
+    --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
+    the sizes are refined (default 5, 0: never), and a bad count is a usage error."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
@@ -63,7 +64,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
                 "--depth-prior", "0.02",
                 "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
-        "binned": ["--binned-hypotheses"],
+        "binned": ["--binned-hypotheses", "--size-every", "0"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -72,6 +73,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]
         assert meta["binned_hypotheses"] == (name == "binned")
+        assert meta["size_every"] == (0 if name == "binned" else 5)
         if name == "binned":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":
@@ -86,6 +88,11 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
             assert meta["depth_prior"] == 0.02 and meta["upright"] == 0.1 and meta["up"] == [0.0, 0.0, 1.0]
             assert meta["rest_prior"] == 0.01
             np.testing.assert_array_equal(scales, 1.0)
+    for bad in ("-1", "2.5"):
+        with pytest.raises(SystemExit) as exc:
+            main(["track", anatomical, "--masks", str(d), "--size-every", bad, "-o", str(tmp_path / "bad")])
+        assert exc.value.code == 2
+    assert not (tmp_path / "bad").exists()
 
 
 def test_synth_layout_one_camera(tmp_path):

@@ -66,7 +66,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
     p.add_argument("--no-size-calibration", action="store_true",
                    help="keep the spec's body sizes (default: measure them on the first frame, whose "
-                        "pose is taken to be the rest pose or --init POSE; not with --init auto)")
+                        "pose is taken to be the rest pose or --init POSE, and refine them as the "
+                        "subject turns; not with --init auto)")
+    p.add_argument("--size-every", type=_count, default=5, metavar="N",
+                   help="refine the measured body sizes on every N-th frame (default 5; 0: keep the "
+                        "first frame's)")
     p.add_argument("--no-mirror-hypothesis", action="store_true",
                    help="with one camera, do not also track the mirror image of the pose (it tells "
                         "which way a turn goes; one more ECM a frame)")
@@ -97,6 +101,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "camera: it holds the joints the images do not fix, e.g. a hidden arm's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got '{text}'")
+    return value
 
 
 def _non_negative(text: str) -> float:
@@ -298,7 +312,7 @@ def run(args: argparse.Namespace) -> int:
     # body sizes are measured on the first frame only where its pose is known (the rest pose
     # or --init POSE): at a pose found by the search they would absorb its errors
     tracker = Tracker(
-        robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
+        robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto), size_every=args.size_every,
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
@@ -310,7 +324,8 @@ def run(args: argparse.Namespace) -> int:
         meta = {
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
-            "size_calibration": tracker.calibrate_sizes, "mirror_hypothesis": tracker.mirror_hypothesis,
+            "size_calibration": tracker.calibrate_sizes, "size_every": tracker.size_every,
+            "mirror_hypothesis": tracker.mirror_hypothesis,
             "swap_hypothesis": tracker.swap_hypothesis, "limb_search": tracker.limb_search,
             "binned_hypotheses": tracker.binned_hypotheses,
             "depth_prior": tracker.depth_prior,

@@ -92,6 +92,9 @@ _I6 = np.arange(6)
 _BACKTRACK = 4
 #: bounds of the calibrated body sizes relative to the model's (:meth:`Tracker.calibrate`)
 _SCALE_MIN, _SCALE_MAX = float(np.exp(-0.35)), float(np.exp(0.35))
+#: pull of the refined body sizes towards the spec's, relative to a body's largest size
+#: information (:meth:`Tracker._refine_sizes`)
+_SIZE_PRIOR = 0.01
 
 
 def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -201,6 +204,14 @@ class Tracker:
             ``q0`` (:meth:`calibrate`); turn off when the first frame does not show the
             subject at ``q0``.  On the benchmark it cut the multi-camera body-centre errors
             by 29-63 %.
+        size_every: with ``calibrate_sizes``, the sizes are refined on every this many
+            frames after the first (0: the first frame's are kept), from the frames
+            that fit at least as well as the running fit and have nothing flagged.
+            Each such frame's fit of the sizes is weighted by its information
+            (:meth:`_refine_sizes`), so an axis along one camera's viewing ray on the
+            first frame is measured once the subject turns it into view.  With a 10 %
+            size mismatch it gave the one-camera full body with both priors a median
+            body-centre error of 0.97 % against 1.29 % over ten seeds (README).
         size_iterations: E-step / size-fit rounds of the calibration.
         mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
             when there is one camera, the root is free and the model has left/right
@@ -330,6 +341,7 @@ class Tracker:
         max_prediction_deg: float = 20.0,
         scales=None,
         calibrate_sizes: bool = True,
+        size_every: int = 5,
         size_iterations: int = 4,
         mirror_hypothesis: bool | None = None,
         swap_hypothesis: bool | None = None,
@@ -417,6 +429,12 @@ class Tracker:
             self.outer = self.outer * sc
         self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
         self._calibrated = False
+        self.size_every = max(0, int(size_every))
+        # the evidence on the body sizes so far (:meth:`_refine_sizes`): per body the sum of
+        # its size fits' Gauss-Newton matrices (in log semi-axes), and of those matrices
+        # times the fitted log-scales
+        self._size_info = np.zeros((len(robot.bodies), 3, 3))
+        self._size_rhs = np.zeros((len(robot.bodies), 3))
         self._alts: dict[str, list] = {}  # alternative hypotheses: kind -> [q, previous q, score, fit]
         self._reset(robot.q_rest if q0 is None else q0, "initial pose")
         self._root_dofs = 3 if robot.root == "free" else 0
@@ -568,13 +586,41 @@ class Tracker:
         for _ in range(max(1, self.size_iterations)):
             poses, views = self.e_step(q, masks, delta)
             for i, v in enumerate(views):
-                f, _ = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+                f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
                 self.scales[i] = np.clip(self.scales[i] * f, _SCALE_MIN, _SCALE_MAX)
                 self.inner[i] = base_in[i] * self.scales[i]
                 self.outer[i] = base_out[i] * self.scales[i]
+                self._size_info[i] = H
+                self._size_rhs[i] = H @ np.log(self.scales[i])
             delta = max(self.delta_final, 0.5 * delta)
         self._calibrated = True
         return self.scales.copy()
+
+    def _refine_sizes(self, q: np.ndarray, masks) -> None:
+        """Fold a tracked frame's evidence on the body sizes into :attr:`scales`.
+
+        Each body's log semi-axes are fit to the frame with the pose held at ``q`` (as
+        in :meth:`calibrate`), giving an estimate ``x_k`` and its Gauss-Newton matrix
+        ``H_k``.  The sizes become the information-weighted mean of every frame's so
+        far, the first frame's (the calibration) included, pulled towards the spec's by
+        ``_SIZE_PRIOR`` of the largest information: ``x = (Σ H_k + λ I)⁻¹ Σ H_k x_k``.
+        An axis along the viewing ray has no information in that frame, so it keeps its
+        estimate until the subject turns it into view.
+        """
+        poses, views = self.e_step(q, masks, self.delta_final)
+        base_in, base_out = self.inner / self.scales, self.outer / self.scales
+        for i, v in enumerate(views):
+            f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+            self._size_info[i] += H
+            self._size_rhs[i] += H @ np.log(self.scales[i] * f)
+            info = self._size_info[i]
+            lam = _SIZE_PRIOR * float(np.max(np.diag(info)))
+            if lam <= 0.0:  # nothing seen of this body yet
+                continue
+            x = np.linalg.solve(info + lam * np.eye(3), self._size_rhs[i])
+            self.scales[i] = np.clip(np.exp(x), _SCALE_MIN, _SCALE_MAX)
+            self.inner[i] = base_in[i] * self.scales[i]
+            self.outer[i] = base_out[i] * self.scales[i]
 
     def iterate(
         self,
@@ -942,6 +988,11 @@ class Tracker:
             if fit == 0.0:  # the model's silhouettes miss the masks: nothing to go on
                 q = self.q.copy()
                 flags += ("lost: kept the last pose",)
+            # a frame fitting at least as well as the running fit, and with nothing to report
+            # (no switch, no limb search, no empty camera), is evidence on the body sizes
+            if self._calibrated and self.size_every > 0 and self.frame % self.size_every == 0 \
+                    and not flags and fit >= self._score:
+                self._refine_sizes(q, masks)
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         # a poorly fitting pose is no basis for a velocity: coasting on it carries a lost
         # track out of the view

@@ -58,7 +58,7 @@ class Trajectory:
         self.q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
         self.results = list(results)
         #: (n_bodies, 3) semi-axis factors of the tracked model (:meth:`~kms2pin.ecm.tracker.Tracker.calibrate`)
-        self.scales = None if scales is None else np.asarray(scales, dtype=float)
+        self.scales = None if scales is None else np.array(scales, dtype=float)  # a copy: the tracker refines its own
 
     def __len__(self) -> int:
         return len(self.q)
