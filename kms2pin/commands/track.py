@@ -68,9 +68,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="keep the spec's body sizes (default: measure them on the first frame, whose "
                         "pose is taken to be the rest pose or --init POSE, and refine them as the "
                         "subject turns; not with --init auto)")
-    p.add_argument("--size-every", type=_count, default=5, metavar="N",
-                   help="refine the measured body sizes on every N-th frame (default 5; 0: keep the "
-                        "first frame's)")
+    p.add_argument("--size-every", type=_count, default=None, metavar="N",
+                   help="refine the measured body sizes on every N-th frame (0: keep the first frame's; "
+                        "default 5 with --masks, 0 with --video, whose segmentation errors, such as the "
+                        "gaps between the arms and the trunk filled in, the sizes would take up)")
     p.add_argument("--no-mirror-hypothesis", action="store_true",
                    help="with one camera, do not also track the mirror image of the pose (it tells "
                         "which way a turn goes; one more ECM a frame)")
@@ -312,7 +313,8 @@ def run(args: argparse.Namespace) -> int:
     # body sizes are measured on the first frame only where its pose is known (the rest pose
     # or --init POSE): at a pose found by the search they would absorb its errors
     tracker = Tracker(
-        robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto), size_every=args.size_every,
+        robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
+        size_every=(0 if video_mode else 5) if args.size_every is None else args.size_every,
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,

@@ -211,7 +211,10 @@ class Tracker:
             (:meth:`_refine_sizes`), so an axis along one camera's viewing ray on the
             first frame is measured once the subject turns it into view.  With a 10 %
             size mismatch it gave the one-camera full body with both priors a median
-            body-centre error of 0.97 % against 1.29 % over ten seeds (README).
+            body-centre error of 0.97 % against 1.29 % over ten seeds (README).  It
+            assumes the masks' errors are noise: on segmented video, whose errors are
+            partly systematic (gaps between the arms and the trunk filled in), it made
+            the full body worse on two clips of three, so ``track --video`` turns it off.
         size_iterations: E-step / size-fit rounds of the calibration.
         mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
             when there is one camera, the root is free and the model has left/right

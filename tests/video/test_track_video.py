@@ -199,7 +199,9 @@ def test_no_shadows_reaches_the_segmentation(tmp_path, capsys):
     code = main(["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-shadows",
                  "--init", str(tmp_path / "start.csv"), "--no-progress", "--no-video", "-o", str(out)])
     assert code == 0, capsys.readouterr().err
-    assert json.loads((out / "meta.json").read_text())["shadow_detection"] is False
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["shadow_detection"] is False
+    assert meta["size_calibration"] and meta["size_every"] == 0  # --init POSE: measured, not refined
     masks = read_masks(out / "masks" / "cam0", len(frames))
     assert min((m & t).sum() / t.sum() for m, t in zip(masks, light)) >= 0.98
 
