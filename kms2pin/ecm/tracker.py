@@ -579,7 +579,9 @@ class Tracker:
         silhouette cost of the M-step (:func:`kms2pin.ecm.mstep.fit_body_scale`),
         alternating with the E-step as the edge width anneals.  Axes no camera sees
         (along the viewing ray) keep the model's size.  Returns the scale factors
-        (n_bodies, 3) relative to the model, also kept in :attr:`scales`.
+        (n_bodies, 3) relative to the model, also kept in :attr:`scales`.  The last
+        round's fits are the first evidence of the size refinement (``size_every``,
+        :meth:`_refine_sizes`); calling this again starts that evidence afresh.
         """
         masks = self._masks(masks, source)
         q = self.q if q is None else np.asarray(q, dtype=float)
