@@ -93,7 +93,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     res = [tr.step(m, source=f"frame {k}") for k, m in enumerate(data)]
     wall = time.perf_counter() - t0
     rep = evaluate(robot, Trajectory(robot, np.array([r.q for r in res]), res), Trajectory(robot, motion))
-    split = {k: sum(r.timings[k] for r in res) for k in ("e_step", "m_step", "static_update")}
+    split = {k: sum(r.timings.get(k, 0.0) for r in res) for k in ("e_step", "m_step", "static_update", "sizes")}
     iters = np.mean([r.iterations for r in res])
     rig = "level" if level and ncam > 1 else "raised"
     tag = f" seed {seed}" if seed else ""
@@ -102,7 +102,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
         f"{rep['revolute_rmse_deg']:.2f} deg | worst {rep['worst_frame_error_pct']:.3f} % (frame "
         f"{rep['worst_frame']}) | last/first {rep['first_vs_last_ratio']:.2f} | {frames / wall:.1f} fr/s, "
         f"{iters:.1f} it/fr | E {split['e_step'] / wall:.0%} M {split['m_step'] / wall:.0%} "
-        f"S {split['static_update'] / wall:.0%}",
+        f"S {split['static_update'] / wall:.0%} sizes {split['sizes'] / wall:.0%}",
         flush=True,
     )
     return rep["mean_centre_error_pct"], rep["revolute_rmse_deg"], frames / wall, rep["first_vs_last_ratio"]

@@ -954,7 +954,7 @@ class Tracker:
         masks = self._masks(masks, source)
         robot = self.robot
         model = robot.model
-        timings = {"e_step": 0.0, "m_step": 0.0, "static_update": 0.0}
+        timings = {"e_step": 0.0, "m_step": 0.0, "static_update": 0.0, "sizes": 0.0}
         empty = [not m.any() for m in masks]
         if all(empty):
             res = FrameResult(self.q.copy(), robot.maximal_coordinates(self.q), 0, 0.0, False, ("empty mask",), timings)
@@ -997,7 +997,9 @@ class Tracker:
             # (no switch, no limb search, no empty camera), is evidence on the body sizes
             if self._calibrated and self.size_every > 0 and self.frame % self.size_every == 0 \
                     and not flags and fit >= self._score:
+                t0 = time.perf_counter()
                 self._refine_sizes(q, masks)
+                timings["sizes"] += time.perf_counter() - t0
         res = FrameResult(q.copy(), robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         # a poorly fitting pose is no basis for a velocity: coasting on it carries a lost
         # track out of the view

@@ -33,7 +33,8 @@ class FrameResult:
             hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
             the limb search's ``"swung '<joint>' the other way"`` and ``"swapped
             '<left joint>' and '<right joint>'"``.
-        timings: seconds spent in the E-step, M-step and static update.
+        timings: seconds spent in the E-step, M-step and static update, and in the size
+            refinement (``sizes``; :meth:`step` only).
     """
 
     q: np.ndarray
