@@ -419,17 +419,17 @@ class Tracker:
         self.max_step = max_step
         self.poor_fit = float(poor_fit)
         self.max_prediction = np.radians(float(max_prediction_deg))
-        # (n_bodies, 3) semi-axes, the spec's times the measured scales
-        self.inner = np.array([robot.inner(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
-        self.outer = np.array([robot.outer(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
+        # (n_bodies, 3) semi-axes: the spec's, and those times the measured scales
+        self._spec_inner = np.array([robot.inner(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
+        self._spec_outer = np.array([robot.outer(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
         self.scales = np.ones((len(robot.bodies), 3))
         if scales is not None:
             sc = np.asarray(scales, dtype=float)
             if sc.shape != self.scales.shape or not np.all(sc > 0):
                 raise ValueError(f"scales must be positive, shape {self.scales.shape}; got shape {sc.shape}")
             self.scales = sc.copy()
-            self.inner = self.inner * sc
-            self.outer = self.outer * sc
+        self.inner = self._spec_inner * self.scales
+        self.outer = self._spec_outer * self.scales
         self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
         self._calibrated = False
         self.size_every = max(0, int(size_every))
@@ -585,16 +585,12 @@ class Tracker:
         """
         masks = self._masks(masks, source)
         q = self.q if q is None else np.asarray(q, dtype=float)
-        base_in = self.inner / self.scales
-        base_out = self.outer / self.scales
         delta = self.delta_start
         for _ in range(max(1, self.size_iterations)):
             poses, views = self.e_step(q, masks, delta)
             for i, v in enumerate(views):
                 f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
-                self.scales[i] = np.clip(self.scales[i] * f, _SCALE_MIN, _SCALE_MAX)
-                self.inner[i] = base_in[i] * self.scales[i]
-                self.outer[i] = base_out[i] * self.scales[i]
+                self._set_scales(i, self.scales[i] * f)
                 self._size_info[i] = H
                 self._size_rhs[i] = H @ np.log(self.scales[i])
             delta = max(self.delta_final, 0.5 * delta)
@@ -613,7 +609,6 @@ class Tracker:
         estimate until the subject turns it into view.
         """
         poses, views = self.e_step(q, masks, self.delta_final)
-        base_in, base_out = self.inner / self.scales, self.outer / self.scales
         for i, v in enumerate(views):
             f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
             self._size_info[i] += H
@@ -622,10 +617,14 @@ class Tracker:
             lam = _SIZE_PRIOR * float(np.max(np.diag(info)))
             if lam <= 0.0:  # nothing seen of this body yet
                 continue
-            x = np.linalg.solve(info + lam * np.eye(3), self._size_rhs[i])
-            self.scales[i] = np.clip(np.exp(x), _SCALE_MIN, _SCALE_MAX)
-            self.inner[i] = base_in[i] * self.scales[i]
-            self.outer[i] = base_out[i] * self.scales[i]
+            self._set_scales(i, np.exp(np.linalg.solve(info + lam * np.eye(3), self._size_rhs[i])))
+
+    def _set_scales(self, i: int, scales: np.ndarray) -> None:
+        """Body ``i``'s semi-axis factors (clipped to the calibration's bounds) and its
+        inner and outer ellipsoids to match."""
+        self.scales[i] = np.clip(scales, _SCALE_MIN, _SCALE_MAX)
+        self.inner[i] = self._spec_inner[i] * self.scales[i]
+        self.outer[i] = self._spec_outer[i] * self.scales[i]
 
     def iterate(
         self,
