@@ -84,19 +84,30 @@ def segmentation(n_frames: int) -> None:
     cv2.setNumThreads(default_threads)
 
 
-def end_to_end(n_frames: int) -> None:
+def _scene(n_frames: int):
+    """The full-body scene of sections 2 and 3: spec, robot, the two cameras, the true motion."""
     spec = SPECS / "fullbody.kms"
     robot = load(str(spec), root="free")
     cams = [Camera.default(), Camera.look_at(position=[8, 3, 8], target=robot.q_rest[:3])]
-    truth = diagonal_walk(robot, n_frames, stride=2)  # 15 frames/s
+    return spec, robot, cams, diagonal_walk(robot, n_frames, stride=2)  # 15 frames/s
+
+
+def _write_videos(d: Path, robot, cams, truth, seed: int) -> list[str]:
+    """One video and camera file per camera in ``d`` (noise seeds ``seed + k``); the
+    ``track`` arguments that read them."""
+    args = []
+    for k, cam in enumerate(cams):
+        write_video(d / f"cam{k}.avi", walking_video(robot, cam, seed=seed + k, q=truth).frames)
+        cam.to_json(d / f"cam{k}.json")
+        args += ["--video", str(d / f"cam{k}.avi"), "--camera", str(d / f"cam{k}.json")]
+    return args
+
+
+def end_to_end(n_frames: int) -> None:
+    spec, robot, cams, truth = _scene(n_frames)
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        args = []
-        for k, cam in enumerate(cams):
-            video = walking_video(robot, cam, seed=k, q=truth)
-            write_video(d / f"cam{k}.avi", video.frames)
-            cam.to_json(d / f"cam{k}.json")
-            args += ["--video", str(d / f"cam{k}.avi"), "--camera", str(d / f"cam{k}.json")]
+        args = _write_videos(d, robot, cams, truth, 0)
         t0 = time.perf_counter()
         masks, _ = segment_videos([d / f"cam{k}.avi" for k in range(2)], cams)
         t_seg = time.perf_counter() - t0
@@ -123,18 +134,11 @@ def end_to_end(n_frames: int) -> None:
 def size_refinement(clips: int, n_frames: int = 60) -> None:
     """Section 3 of the module docstring."""
     print(f"size refinement on segmented video: full body, 2 cameras, {n_frames} frames, --init at the true pose")
-    spec = SPECS / "fullbody.kms"
-    robot = load(str(spec), root="free")
-    cams = [Camera.default(), Camera.look_at(position=[8, 3, 8], target=robot.q_rest[:3])]
-    truth = diagonal_walk(robot, n_frames, stride=2)
+    spec, robot, cams, truth = _scene(n_frames)
     for clip in range(clips):
         with tempfile.TemporaryDirectory() as tmp:
             d = Path(tmp)
-            args = []
-            for k, cam in enumerate(cams):
-                write_video(d / f"cam{k}.avi", walking_video(robot, cam, seed=10 * clip + k, q=truth).frames)
-                cam.to_json(d / f"cam{k}.json")
-                args += ["--video", str(d / f"cam{k}.avi"), "--camera", str(d / f"cam{k}.json")]
+            args = _write_videos(d, robot, cams, truth, 10 * clip)
             Trajectory(robot, truth[:1]).to_csv(d / "init.csv")
             row = []
             for every in (5, 0):
