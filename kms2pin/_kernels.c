@@ -767,6 +767,73 @@ static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_
     return Py_BuildValue("(dd)", cost, evidence);
 }
 
+/* scale_fit(dirs, A, e, R, inner, inv, y, o, weight|None, H, grad) -> cost
+ * kms2pin.ecm.mstep._scale_evaluate for one view: the silhouette cost of silhouette_fit
+ * in the log semi-axes of the body's inner ellipsoid, its pose held.  With x* the
+ * closest approach in the body frame in semi-axes, x_k = (R^T q*)_k / L_k, a^2 = |x|^2
+ * and d(a^2)/d log L_k = -2 x_k^2; adds J^T wt J to H (3x3) and J^T wt r to grad (3),
+ * J = dr/d log L over the pixels on the edge. */
+static PyObject *scale_fit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "scale_fit takes 11 arguments");
+        return NULL;
+    }
+    double A[9], e[3], R[9], L[3];
+    if (small_args(args[1], args[2], A, e) < 0 || small_args(args[3], args[4], R, L) < 0) return NULL;
+    double inv = PyFloat_AsDouble(args[5]);
+    if (inv == -1.0 && PyErr_Occurred()) return NULL;
+    int has_w = args[8] != Py_None;
+    Buf b[6];
+    memset(b, 0, sizeof(b));
+    int ok = get_buf(args[0], &b[0], 0, "dirs") == 0 && check_2d(&b[0], -1, 3, "dirs") == 0;
+    Py_ssize_t N = ok ? b[0].view.shape[0] : 0;
+    ok = ok && vec_arg(args[6], &b[1], N, 0, "y") == 0 && vec_arg(args[7], &b[2], N, 0, "o") == 0 &&
+         (!has_w || vec_arg(args[8], &b[3], N, 0, "weight") == 0) && get_buf(args[9], &b[4], 1, "H") == 0 &&
+         check_2d(&b[4], 3, 3, "H") == 0 && vec_arg(args[10], &b[5], 3, 1, "grad") == 0;
+    if (!ok) {
+        release(b, 6);
+        return NULL;
+    }
+    double Ae[3];
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    const Quadric kq = quadric(A, e, Ae);
+    double cost = 0.0, hu[6] = {0}, gl[3] = {0}; /* hu: the upper triangle of H, row by row */
+    for (Py_ssize_t i = 0; i < N; i++) {
+        Closest cl = ray_closest(kq, AT(b[0], i, 0), AT(b[0], i, 1), AT(b[0], i, 2));
+        double x[3];
+        for (int k = 0; k < 3; k++) x[k] = (cl.q0 * R[k] + cl.q1 * R[3 + k] + cl.q2 * R[6 + k]) / L[k];
+        double a2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+        double h = (1.0 - a2) * inv;
+        double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+        double s = h >= 0 ? s1 : s0;
+        double y = V(b[1], i), o = V(b[2], i), wt = has_w ? V(b[3], i) : 1.0;
+        double fr = 1.0 - o, r = y - o - fr * s;
+        cost += wt * r * r;
+        if (!(fabs(h) < H_CUT)) continue; /* saturated edge: no gradient */
+        double w = fr * s0 * s1 * inv;
+        if (!(w > 0.0)) continue;
+        double J[3] = {-2.0 * x[0] * x[0] * w, -2.0 * x[1] * x[1] * w, -2.0 * x[2] * x[2] * w};
+        int m = 0;
+        for (int a = 0; a < 3; a++) {
+            double ja = wt * J[a];
+            gl[a] += ja * r;
+            for (int c = a; c < 3; c++) hu[m++] += ja * J[c];
+        }
+    }
+    int m = 0;
+    for (int a = 0; a < 3; a++) {
+        V(b[5], a) += gl[a];
+        for (int c = a; c < 3; c++, m++) {
+            AT(b[4], a, c) += hu[m];
+            if (c != a) AT(b[4], c, a) += hu[m];
+        }
+    }
+    release(b, 6);
+    return PyFloat_FromDouble(cost);
+}
+
 /* ------------------------------------------------------------------ ECM E-step
  * kms2pin.ecm.tracker.Tracker.iterate's E-step per pixel: each body's sharp
  * silhouette s = sigma(h) on its box, the union's log(1 - M) = sum_j log(1 - s_j)
@@ -1507,6 +1574,8 @@ static PyMethodDef methods[] = {
      "ellipsoid_a2(dirs, A, e, out): closest approach a^2 of every ray to the ellipsoid"},
     {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,
      "silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> (cost, evidence)"},
+    {"scale_fit", (PyCFunction)(void (*)(void))scale_fit, METH_FASTCALL,
+     "scale_fit(dirs, A, e, R, inner, inv, y, o, weight, H, grad) -> cost: one view's size fit"},
     {"estep_body", (PyCFunction)(void (*)(void))estep_body, METH_FASTCALL,
      "estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp, log_free_o, widen)"},
     {"estep_view", (PyCFunction)(void (*)(void))estep_view, METH_FASTCALL,

@@ -431,6 +431,13 @@ def _scale_evaluate(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inn
     log semi-axes of its inner ellipsoid, the pose held (:func:`fit_body_scale`)."""
     cost, grad, H = 0.0, np.zeros(3), np.zeros((3, 3))
     A = (R / inner**2) @ R.T
+    if NATIVE:  # the loop below, per pixel in C (kms2pin/_kernels.c)
+        for v in views:
+            cost += _kernels.scale_fit(
+                v.image.dirs, A, v.image.camera.centre - t, R, inner, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight,
+                H, grad,
+            )
+        return cost, grad, H
     for v in views:
         qs, _ = _closest(v.image.dirs, A, v.image.camera.centre - t)
         xb = (qs @ R) / inner  # closest points in the body frame, in semi-axes
