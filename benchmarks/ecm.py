@@ -75,6 +75,9 @@ CASES = {
     # such as a hidden arm's, are held near the rest pose
     "lowerbody-prior-1cam": ("anatomical/lowerbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
     "fullbody-prior-1cam": ("anatomical/fullbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
+    # the thesis's models as printed (no joint limits) with both priors
+    "lowerbody-thesis-prior-1cam": ("lowerbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
+    "fullbody-thesis-prior-1cam": ("fullbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
 }
 
 
