@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import inspect
 import os
 import time
 from pathlib import Path
@@ -129,8 +130,20 @@ def main():
     a = p.parse_args()
     options = {}
     for item in a.option:
-        key, _, value = item.partition("=")
-        options[key.strip()] = ast.literal_eval(value.strip())
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            p.error(f"--option wants NAME=VALUE, not {item!r}")
+        try:
+            options[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):  # a bare word: a string (prediction=previous)
+            options[key.strip()] = value.strip()
+    unknown = [k for k in options if k not in inspect.signature(Tracker).parameters]
+    if unknown:
+        p.error(f"--option: Tracker has no option {', '.join(unknown)}")
+    if a.only:
+        bad = [n for n in a.only.split(",") if n not in CASES]
+        if bad:
+            p.error(f"--only: no case {', '.join(bad)}; the cases are {', '.join(CASES)}")
     seeds = [int(x) for x in a.seeds.split(",")]
     for name in a.only.split(",") if a.only else CASES:
         rows = [run_case(name, a.frames, a.noise, a.size_mismatch, a.level, seed, **options) for seed in seeds]
