@@ -716,6 +716,19 @@ static void view_accumulate(const View *v, const double *A, const double *t, int
     for (int m = 0; m < 21; m++) Hu[m] += hu[m];
 }
 
+/* H (n x n) += the symmetric matrix whose upper triangle, row by row, is hu; g (n) += gl */
+static void add_packed(Buf *H, Buf *g, int n, const double *hu, const double *gl)
+{
+    int m = 0;
+    for (int a = 0; a < n; a++) {
+        V(*g, a) += gl[a];
+        for (int c = a; c < n; c++, m++) {
+            AT(*H, a, c) += hu[m];
+            if (c != a) AT(*H, c, a) += hu[m];
+        }
+    }
+}
+
 /* silhouette_fit(dirs, A, e, inv, y, o, weight|None, jac, H, grad) -> (cost, evidence)
  * For the sharp silhouette s = sigma((1 - a^2) inv) of one body in one view:
  * r = y - o - (1 - o) s, cost = sum wt r^2, evidence = sum wt (1 - o) s y; with jac,
@@ -752,16 +765,7 @@ static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_
     }
     double cost = 0.0, evidence = 0.0, Hu[21] = {0}, g6[6] = {0}, zero[3] = {0.0, 0.0, 0.0};
     view_accumulate(&v, A, zero, jac, &cost, &evidence, g6, Hu);
-    if (jac) {
-        int k = 0;
-        for (int a = 0; a < 6; a++) {
-            V(b[1], a) += g6[a];
-            for (int c = a; c < 6; c++, k++) {
-                AT(b[0], a, c) += Hu[k];
-                if (c != a) AT(b[0], c, a) += Hu[k];
-            }
-        }
-    }
+    if (jac) add_packed(&b[0], &b[1], 6, Hu, g6);
     release_views(&v, 1);
     release(b, 2);
     return Py_BuildValue("(dd)", cost, evidence);
@@ -822,14 +826,7 @@ static PyObject *scale_fit(PyObject *self, PyObject *const *args, Py_ssize_t nar
             for (int c = a; c < 3; c++) hu[m++] += ja * J[c];
         }
     }
-    int m = 0;
-    for (int a = 0; a < 3; a++) {
-        V(b[5], a) += gl[a];
-        for (int c = a; c < 3; c++, m++) {
-            AT(b[4], a, c) += hu[m];
-            if (c != a) AT(b[4], c, a) += hu[m];
-        }
-    }
+    add_packed(&b[4], &b[5], 3, hu, gl);
     release(b, 6);
     return PyFloat_FromDouble(cost);
 }
