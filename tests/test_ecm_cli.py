@@ -50,12 +50,13 @@ def test_synth_track_evaluate(tmp_path, cams2, capsys):
     assert rep["revolute_rmse_deg"] < 5.0
 
 
-def test_one_camera_options_reach_the_tracker(tmp_path):
+def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     """One camera: the mirror and swap hypotheses and the limb search are on by default;
     --no-mirror-hypothesis, --no-swap-hypothesis, --no-limb-search and --no-size-calibration turn them
     off (meta.json records what ran), and the body sizes then stay the spec's;
     --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
-    the sizes are refined (default 5, 0: never), and a bad count is a usage error."""
+    the sizes are refined (default 5, 0: never), and a bad count is a usage error.  Without
+    the upright and rest priors a one-camera run points at them."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0
@@ -68,7 +69,9 @@ def test_one_camera_options_reach_the_tracker(tmp_path):
     }
     for name, flags in runs.items():
         out = tmp_path / name
+        capsys.readouterr()
         assert main(["track", anatomical, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
+        assert ("--upright 0.1 --rest-prior 0.01" in capsys.readouterr().err) == (name != "off")
         meta = json.loads((out / "meta.json").read_text())
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]

@@ -305,6 +305,9 @@ def run(args: argparse.Namespace) -> int:
             f = numbers[k]
             return [read_mask(pc[f], f, cam) for pc, cam in zip(_pc, cameras)]
 
+    if len(cameras) == 1 and robot.root == "free" and args.upright == 0 and args.rest_prior == 0:
+        print("note: one camera: for a person walking or standing, --upright 0.1 --rest-prior 0.01 hold what one "
+              "view does not fix (not for a hand; the README's 'Which options')", file=sys.stderr)
     q0 = _initial_q(args, robot)
     auto = args.init == "auto" or (video_mode and not args.init)
     init_fit = None
