@@ -81,6 +81,8 @@ CASES = {
     "fullbody-thesis-prior-1cam": ("fullbody", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
 }
 
+_WIDTH = max(map(len, CASES)) + len(" seed 10")  # the name column: every case's rows in line
+
 
 def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     """Track one case; print its row and return (centre error %, revolute RMSE deg, frames/s,
@@ -102,7 +104,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     rig = "level" if level and ncam > 1 else "raised"
     tag = f" seed {seed}" if seed else ""
     print(
-        f"{name + tag:16s} {rig:6s} {frames:4d} fr | centre err {rep['mean_centre_error_pct']:.3f} % | rev RMSE "
+        f"{name + tag:{_WIDTH}s} {rig:6s} {frames:4d} fr | centre err {rep['mean_centre_error_pct']:.3f} % | rev RMSE "
         f"{rep['revolute_rmse_deg']:.2f} deg | worst {rep['worst_frame_error_pct']:.3f} % (frame "
         f"{rep['worst_frame']}) | last/first {rep['first_vs_last_ratio']:.2f} | {frames / wall:.1f} fr/s, "
         f"{iters:.1f} it/fr | E {split['e_step'] / wall:.0%} M {split['m_step'] / wall:.0%} "
@@ -150,7 +152,7 @@ def main():
         if len(rows) > 1:
             err, rmse, fps, drift = np.array(rows).T
             print(
-                f"{name:16s} median of {len(rows)} seeds | centre err {np.median(err):.3f} % (max {err.max():.3f}) | "
+                f"{name:{_WIDTH}s} median of {len(rows)} seeds | centre err {np.median(err):.3f} % (max {err.max():.3f}) | "
                 f"rev RMSE {np.median(rmse):.2f} deg (max {rmse.max():.2f}) | last/first at most 1.5 on "
                 f"{int(np.sum(drift <= 1.5))} of {len(rows)} (max {drift.max():.2f}) | {np.median(fps):.1f} fr/s",
                 flush=True,
