@@ -511,6 +511,17 @@ class Tracker:
             out.append(m)
         return out
 
+    def fit(self, q, masks, source: str = "frame") -> float:
+        """The silhouette fit at ``q``: the intersection over union of the model's inner
+        ellipsoids (at the tracker's current body sizes) with ``masks``, pooled over
+        every camera, as :attr:`FrameResult.fit` reports it for a frame that every camera
+        sees.  E.g. to ask whether a pose the tracker did not choose fits the images as
+        well (``benchmarks/ecm.py`` compares the true poses' fit with the tracked ones')."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.robot.model.nq,):
+            raise ValueError(f"q has shape {q.shape}; the model has nq = {self.robot.model.nq}")
+        return self._iou(q, self._masks(masks, source))
+
     def _iou(self, q: np.ndarray, masks: Sequence[np.ndarray]) -> float:
         poses, Rs, ts = self._body_poses(q)
         inter = union = 0

@@ -1064,3 +1064,26 @@ def test_refine_fits_one_frame_from_a_given_pose_and_leaves_the_tracker_as_it_wa
     np.testing.assert_array_equal(tr.q, state[0])
     np.testing.assert_array_equal(tr._prev, state[1])
     assert tr.frame == state[2] and tr.cameras == cams
+
+
+def test_fit_is_the_iou_of_the_model_silhouettes_and_what_a_step_reports():
+    """Tracker.fit: at the pose the masks were ray cast from (the spec's sizes) the model
+    overlaps them almost exactly; with a knee bent 20° further it fits worse, by the IoU
+    of that pose's own ray-cast masks with them; after a step it gives the frame's fit."""
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    masks = render(robot, robot.q_rest, cams)
+    tr = Tracker(robot, cams, calibrate_sizes=False)
+    at_truth = tr.fit(robot.q_rest, masks)
+    assert at_truth > 0.97
+    q = robot.q_rest.copy()
+    q[robot.model.joints[robot.model.getJointId("leftShin_knee")].idx_q] += np.radians(20)
+    bent = render(robot, q, cams)
+    direct = sum(np.count_nonzero(a & b) for a, b in zip(bent, masks)) / sum(
+        np.count_nonzero(a | b) for a, b in zip(bent, masks))
+    assert tr.fit(q, masks) == pytest.approx(direct, abs=0.02)
+    assert tr.fit(q, masks) < at_truth - 0.02
+    res = tr.step(masks)
+    assert res.fit == pytest.approx(tr.fit(res.q, masks), abs=1e-12)
+    with pytest.raises(ValueError, match="nq"):
+        tr.fit(robot.q_rest[:5], masks)
