@@ -99,7 +99,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     res = [tr.step(m, source=f"frame {k}") for k, m in enumerate(data)]
     wall = time.perf_counter() - t0
     rep = evaluate(robot, Trajectory(robot, np.array([r.q for r in res]), res), Trajectory(robot, motion))
-    split = {k: sum(r.timings.get(k, 0.0) for r in res) for k in ("e_step", "m_step", "static_update", "sizes")}
+    split = {k: sum(r.timings[k] for r in res) for k in ("e_step", "m_step", "static_update", "sizes")}
     iters = np.mean([r.iterations for r in res])
     # the last 30 frames' fit (IoU) of the tracked poses and of the true ones, both at the
     # tracker's final body sizes: a track that fits as well as the truth while off it
