@@ -31,6 +31,7 @@ SPECS = Path(__file__).resolve().parents[1] / "specs"
 def cameras(robot, n, level=False):
     """Front camera (the default, at the model's mid height) plus, for n > 1, cameras
     raised above the model: right side (20 deg down), left-front oblique, behind-above.
+    ``n``: how many of these, in this order, or a tuple of their indices (0 the front).
 
     ``level=True`` gives the old rig whose side camera is level with the front one:
     two level, orthogonal views share a mirror ambiguity (a turn of the trunk by +a
@@ -52,7 +53,7 @@ def cameras(robot, n, level=False):
             Camera.look_at(position=[-6, 3, 2], target=c),
             Camera.look_at(position=[0, 6, 16], target=c),
         ]
-    return cams[:n]
+    return [cams[i] for i in n] if isinstance(n, tuple) else cams[:n]
 
 
 CASES = {
@@ -63,6 +64,12 @@ CASES = {
     "fullbody-4cam": ("fullbody", "walk", 4),
     "jplhand-2cam": ("jplhand", "random", 2),
     "jplhand-1cam": ("jplhand", "random", 1),
+    # the hand with other rigs: the front camera and the one behind and above (which sees
+    # the thumb where the right side camera, with the front one, can miss its lower joint),
+    # three and four cameras
+    "jplhand-2cam-above": ("jplhand", "random", (0, 3)),
+    "jplhand-3cam": ("jplhand", "random", 3),
+    "jplhand-4cam": ("jplhand", "random", 4),
     # the same models with anatomical joint limits (specs/anatomical)
     "lowerbody-limits-1cam": ("anatomical/lowerbody", "walk", 1),
     "lowerbody-limits-2cam": ("anatomical/lowerbody", "walk", 2),
@@ -107,7 +114,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     last = range(max(0, frames - 30), frames)
     fit_tracked = np.mean([tr.fit(res[k].q, data[k]) for k in last])
     fit_truth = np.mean([tr.fit(motion[k], data[k]) for k in last])
-    rig = "level" if level and ncam > 1 else "raised"
+    rig = "level" if level and len(cams) > 1 else "raised"
     tag = f" seed {seed}" if seed else ""
     print(
         f"{name + tag:{_WIDTH}s} {rig:6s} {frames:4d} fr | centre err {rep['mean_centre_error_pct']:.3f} % | rev RMSE "
