@@ -31,8 +31,9 @@ class FrameResult:
             is predicted without velocity), ``"lost: kept the last pose"`` (the model's
             silhouettes miss the masks entirely), ``"switched to the mirror
             hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
-            the limb search's ``"swung '<joint>' the other way"`` and ``"swapped
-            '<left joint>' and '<right joint>'"``.
+            the limb search's ``"swung '<joint>' the other way"``, ``"put the joints
+            below '<joint>' back at rest"`` and ``"swapped '<left joint>' and '<right
+            joint>'"``.
         timings: seconds spent in the E-step, M-step and static update, and in the size
             refinement (``sizes``; :meth:`step` only).
     """

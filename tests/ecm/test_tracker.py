@@ -850,6 +850,61 @@ def test_limb_search_exchanges_arms_that_took_each_others_place(frame):
     assert centre_error(robot, q, qt) < 0.5
 
 
+@pytest.mark.parametrize("seed,frame,off_deg", [(0, 40, (-40, 100)), (2, 40, (30, -120))])
+def test_limb_search_unfolds_a_finger_folded_the_wrong_way(seed, frame, off_deg):
+    """One camera, clean silhouettes of the hand's random motion: the first finger's
+    middle and tip joints started far off (the tip folded back, as seen on noisy
+    one-camera tracks) is a local minimum of ECM (the tip stays more than 60 deg off);
+    the limb search's candidate with the finger put back at rest below its first joint
+    finds the truth."""
+    robot = _robot("jplhand")
+    qt = make_motion(robot, "random", 300, np.random.default_rng(seed))[frame]
+    cams = [Camera.default()]
+    masks = render(robot, qt, cams)
+    m = robot.model
+    mid, tip = (m.joints[m.getJointId(n)].idx_q for n in ("midFinger1_lowerJoint", "tip1_joint"))
+    q0 = qt.copy()
+    q0[mid] += np.radians(off_deg[0])
+    q0[tip] += np.radians(off_deg[1])
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False)
+    q_ecm, fit_ecm = tr.refine(q0, masks)
+    assert np.degrees(abs(q_ecm[tip] - qt[tip])) > 60.0  # ECM alone keeps the fold
+    q, fit, limb = tr.swing_limbs(q0, masks)
+    assert limb == "lowFinger1_lowerJoint reset"
+    assert fit > fit_ecm + 0.05
+    assert np.degrees(np.abs(q[[mid, tip]] - qt[[mid, tip]])).max() < 5.0
+    # one view fixes the rest only so far (the thumb's lower joint, the hand's distance)
+    assert joint_errors(robot, q, qt).max() < 10.0 and centre_error(robot, q, qt) < 1.0
+
+
+def test_a_finger_put_back_at_rest_is_flagged_and_carries_no_velocity():
+    """Tracking the hand with one camera from the truth, then a frame starting with the
+    first finger folded the wrong way: its fit falls, the limb search puts the finger
+    back at rest below its first joint, and the frame says so; the move is no motion,
+    so the finger's joints are not predicted to go on."""
+    robot = _robot("jplhand")
+    motion = make_motion(robot, "random", 300, np.random.default_rng(0))
+    cams = [Camera.default()]
+    m = robot.model
+    mid, tip = (m.joints[m.getJointId(n)].idx_q for n in ("midFinger1_lowerJoint", "tip1_joint"))
+    results = {}
+    for search in (False, True):
+        tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search)
+        for f in (38, 39):
+            assert not tr.step(render(robot, motion[f], cams)).flags
+        tr.q[mid] += np.radians(-40.0)  # a bad start for frame 40
+        tr.q[tip] += np.radians(100.0)
+        r = tr.step(render(robot, motion[40], cams))
+        results[search] = r
+        err = np.degrees(abs(r.q[tip] - motion[40][tip]))
+        assert (err < 5.0) if search else (err > 60.0)
+    assert results[True].flags == ("put the joints below 'lowFinger1_lowerJoint' back at rest",)
+    assert not results[False].flags
+    v = tr._velocity()
+    for n in ("midFinger1_lowerJoint", "tip1_joint"):
+        assert v[m.joints[m.getJointId(n)].idx_v] == 0.0
+
+
 def test_arms_that_have_just_crossed_get_their_exchange_tried():
     """One camera, clean silhouettes of the walk: frames 251-255 tracked, each from its
     true pose, while the arms cross (frame 252, side-on: they overlap).  Frame 256
