@@ -1268,8 +1268,9 @@ class Tracker:
         put back at rest are refined at full resolution, and the best is kept if its
         fit (IoU) beats ``fit`` by ``_LIMB_GAIN``.  (The exchanges and the limbs put
         back at rest do not compete with the swings for the refinement: an exchange,
-        both arms' images already explained, screens high, and so does a limb put back
-        at rest, which its first joint's angle keeps where it was.)
+        both arms' images already explained, screens high; a limb put back at rest in
+        the swings' two slots made the one-camera thesis lower body's seed 9 end at
+        1.80x its start, against 1.04x in its own slot.)
         Returns the configuration, its fit and the limb's joint ("" if none was kept;
         ``"<joint> reset"`` for a limb put back at rest below its first joint,
         ``"<left> and <right>"`` for twin limbs exchanged)."""
