@@ -212,7 +212,7 @@ class Tracker:
             (:meth:`_refine_sizes`), so an axis along one camera's viewing ray on the
             first frame is measured once the subject turns it into view.  With a 10 %
             size mismatch it gave the one-camera full body with both priors a median
-            body-centre error of 0.97 % against 1.29 % over ten seeds (README).  It
+            body-centre error of 0.97 % against 1.29 % over ten seeds (docs/tracking.md).  It
             assumes the masks' errors are noise: on segmented video, whose errors are
             partly systematic (gaps between the arms and the trunk filled in), it made
             the full body worse on two clips of three, so ``track --video`` turns it off.
@@ -321,7 +321,7 @@ class Tracker:
             the fold.  On the one-camera hand, seeds 0-19, it took the median centre
             error from 2.9 % to 2.7 %, the worst seed from 16.4 % to 10.1 %, and the
             seeds ending within 1.5x of their start from 11 to 14 of 20.  The walkers
-            with both priors stay where they were (ten seeds each; README), at 0.92x
+            with both priors stay where they were (ten seeds each; docs/tracking.md), at 0.92x
             the frames/s on the full body.
     """
 
