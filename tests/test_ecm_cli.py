@@ -71,7 +71,9 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         out = tmp_path / name
         capsys.readouterr()
         assert main(["track", anatomical, "--masks", str(d), "--no-progress", "--no-video", *flags, "-o", str(out)]) == 0
-        assert ("--upright 0.1 --rest-prior 0.01" in capsys.readouterr().err) == (name != "off")
+        err = capsys.readouterr().err
+        # the model has joint limits: the note names the upright prior alone
+        assert ("--upright 0.1 holds" in err) == (name != "off") and "--rest-prior" not in err
         meta = json.loads((out / "meta.json").read_text())
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]
@@ -96,6 +98,17 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
             main(["track", anatomical, "--masks", str(d), "--size-every", bad, "-o", str(tmp_path / "bad")])
         assert exc.value.code == 2
     assert not (tmp_path / "bad").exists()
+
+
+def test_one_camera_note_names_both_priors_for_a_model_without_limits(tmp_path, capsys):
+    """The thesis's lower body has no joint limits: a one-camera run without priors is
+    pointed at both (with the upright prior alone the benchmark lost seeds)."""
+    d = tmp_path / "m"
+    spec = str(SPECS / "lowerbody.kms")
+    assert main(["synth", spec, "--frames", "2", "-o", str(d)]) == 0
+    capsys.readouterr()
+    assert main(["track", spec, "--masks", str(d), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 0
+    assert "--upright 0.1 --rest-prior 0.01 hold" in capsys.readouterr().err
 
 
 def test_synth_layout_one_camera(tmp_path):
