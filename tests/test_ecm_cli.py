@@ -56,7 +56,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     off (meta.json records what ran), and the body sizes then stay the spec's;
     --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
     the sizes are refined (default 5, 0: never), and a bad count is a usage error.  Without
-    the upright and rest priors a one-camera run points at them."""
+    the priors a one-camera run points at the upright prior (the model has joint limits)."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
     assert main(["synth", anatomical, "--frames", "3", "--size-mismatch", "0.1", "-o", str(d)]) == 0

@@ -1283,12 +1283,16 @@ class Tracker:
             qc, _, _ = self._ecm(c, masks, timings, _LIMB_ITERATIONS, binned, binned=True)
             screened.append((self._iou(qc, masks), name, qc))
         screened.sort(key=lambda x: -x[0])
-        swings = [s for s in screened if _LIMB_AND not in s[1] and not s[1].endswith(_LIMB_RESET)][:_LIMB_REFINED]
-        exchanges = [s for s in screened if _LIMB_AND in s[1]][:1]
-        resets = [s for s in screened if s[1].endswith(_LIMB_RESET)][:1]
+        slots = [_LIMB_REFINED, 1, 1]  # refined per kind (swing, exchange, reset), best screened first
+        refined = []
+        for s in screened:
+            kind = 1 if _LIMB_AND in s[1] else 2 if s[1].endswith(_LIMB_RESET) else 0
+            if slots[kind] > 0:
+                slots[kind] -= 1
+                refined.append((-s[0], kind, s))
         out = (q, fit, "")
         coarse = self._coarse(masks)
-        for _, name, qc in sorted(swings + exchanges + resets, key=lambda x: -x[0]):
+        for *_, (_, name, qc) in sorted(refined, key=lambda x: x[:2]):
             qc, _, _ = self._ecm(qc, masks, timings, coarse=coarse)
             fc = self._iou(qc, masks)
             if fc > out[1] + _LIMB_GAIN:
