@@ -80,9 +80,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "left and right swapped (it tells the legs apart after a side-on view; one more "
                         "ECM a frame)")
     p.add_argument("--no-limb-search", action="store_true",
-                   help="with one camera, do not swing a limb the other way when a frame's fit falls "
-                        "behind the running fit (an arm stuck on the wrong side of the trunk), nor try "
-                        "twin limbs exchanged after they cross")
+                   help="do not swing a limb the other way, or put it back at rest below its first joint, "
+                        "when a frame's fit falls behind the running fit (an arm stuck on the wrong side of "
+                        "the trunk, a finger folded the wrong way), nor, with one camera, try twin limbs "
+                        "exchanged after they cross")
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")
