@@ -877,24 +877,31 @@ def test_limb_search_unfolds_a_finger_folded_the_wrong_way(seed, frame, off_deg)
     assert joint_errors(robot, q, qt).max() < 10.0 and centre_error(robot, q, qt) < 1.0
 
 
+def _folded_finger_frame(cams, finger, off_deg, search):
+    """The hand's random motion (seed 0) tracked from the truth on clean silhouettes for
+    frames 38 and 39, then frame 40 started with ``finger``'s middle and tip joints
+    ``off_deg`` off; returns the tracker, frame 40's result, the true configuration
+    and the tip's q index."""
+    robot = _robot("jplhand")
+    motion = make_motion(robot, "random", 300, np.random.default_rng(0))
+    m = robot.model
+    mid, tip = (m.joints[m.getJointId(n)].idx_q for n in (f"midFinger{finger}_lowerJoint", f"tip{finger}_joint"))
+    tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search)
+    for f in (38, 39):
+        assert not tr.step(render(robot, motion[f], cams)).flags
+    tr.q[mid] += np.radians(off_deg[0])
+    tr.q[tip] += np.radians(off_deg[1])
+    return tr, tr.step(render(robot, motion[40], cams)), motion[40], tip
+
+
 def test_with_two_cameras_a_folded_finger_gets_the_limb_search_by_default():
     """Front and side cameras, clean silhouettes of the hand: the second finger started
     folded the wrong way (tip 120 deg off) is a local minimum of ECM with both views
     too, and the default tracker's step puts the finger back at rest and finds it."""
-    robot = _robot("jplhand")
-    motion = make_motion(robot, "random", 300, np.random.default_rng(0))
-    cams = _cams(robot, 2)
-    m = robot.model
-    mid, tip = (m.joints[m.getJointId(n)].idx_q for n in ("midFinger2_lowerJoint", "tip2_joint"))
-    results = {}
+    results, off = {}, {}
     for search in (None, False):
-        tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search)
-        for f in (38, 39):
-            assert not tr.step(render(robot, motion[f], cams)).flags
-        tr.q[mid] += np.radians(30.0)  # a bad start for frame 40
-        tr.q[tip] += np.radians(-120.0)
-        results[search] = tr.step(render(robot, motion[40], cams))
-    off = {k: np.degrees(abs(r.q[tip] - motion[40][tip])) for k, r in results.items()}
+        _, results[search], qt, tip = _folded_finger_frame(_cams(_robot("jplhand"), 2), 2, (30.0, -120.0), search)
+        off[search] = np.degrees(abs(results[search].q[tip] - qt[tip]))
     assert off[False] > 60.0 and not results[False].flags
     assert off[None] < 5.0 and results[None].fit > results[False].fit + 0.02
     assert results[None].flags == ("put the joints below 'lowFinger2_lowerJoint' back at rest",)
@@ -922,25 +929,15 @@ def test_a_finger_put_back_at_rest_is_flagged_and_carries_no_velocity():
     first finger folded the wrong way: its fit falls, the limb search puts the finger
     back at rest below its first joint, and the frame says so; the move is no motion,
     so the finger's joints are not predicted to go on."""
-    robot = _robot("jplhand")
-    motion = make_motion(robot, "random", 300, np.random.default_rng(0))
-    cams = [Camera.default()]
-    m = robot.model
-    mid, tip = (m.joints[m.getJointId(n)].idx_q for n in ("midFinger1_lowerJoint", "tip1_joint"))
     results = {}
     for search in (False, True):
-        tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search)
-        for f in (38, 39):
-            assert not tr.step(render(robot, motion[f], cams)).flags
-        tr.q[mid] += np.radians(-40.0)  # a bad start for frame 40
-        tr.q[tip] += np.radians(100.0)
-        r = tr.step(render(robot, motion[40], cams))
+        tr, r, qt, tip = _folded_finger_frame([Camera.default()], 1, (-40.0, 100.0), search)
         results[search] = r
-        err = np.degrees(abs(r.q[tip] - motion[40][tip]))
+        err = np.degrees(abs(r.q[tip] - qt[tip]))
         assert (err < 5.0) if search else (err > 60.0)
     assert results[True].flags == ("put the joints below 'lowFinger1_lowerJoint' back at rest",)
     assert not results[False].flags
-    v = tr._velocity()
+    v, m = tr._velocity(), tr.robot.model
     for n in ("midFinger1_lowerJoint", "tip1_joint"):
         assert v[m.joints[m.getJointId(n)].idx_v] == 0.0
 
