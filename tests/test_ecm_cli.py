@@ -83,7 +83,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
-            assert meta["limb_search"]
+            assert meta["limb_search"] and meta["limb_search_drop"] == 0.015
             assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
             assert meta["rest_prior"] == 0.0
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
