@@ -55,7 +55,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     --no-mirror-hypothesis, --no-swap-hypothesis, --no-limb-search and --no-size-calibration turn them
     off (meta.json records what ran), and the body sizes then stay the spec's;
     --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
-    the sizes are refined (default 5, 0: never), and a bad count is a usage error.  Without
+    the sizes are refined (default 5, 0: never), and a bad count is a usage error;
+    --limb-search-drop sets the search's fall in fit (default 0.015 with --masks).  Without
     the priors a one-camera run points at the upright prior (the model has joint limits)."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
@@ -65,7 +66,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
                 "--depth-prior", "0.02",
                 "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
-        "binned": ["--binned-hypotheses", "--size-every", "0"],
+        "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -79,6 +80,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
             scales = z["body_scales"]
         assert meta["binned_hypotheses"] == (name == "binned")
         assert meta["size_every"] == (0 if name == "binned" else 5)
+        assert meta["limb_search_drop"] == (0.03 if name == "binned" else 0.015)
         if name == "binned":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":
@@ -192,7 +194,8 @@ def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path,
 
 
 @pytest.mark.parametrize(
-    "flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"], ["--rest-prior", "-0.01"]]
+    "flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"], ["--rest-prior", "-0.01"],
+              ["--limb-search-drop", "-0.01"]]
 )
 def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, flags):
     out = tmp_path / "out"
