@@ -330,7 +330,8 @@ class Tracker:
             frames/s.  Measured against the search off: the two-camera hand, seeds 0-19,
             worst seed 0.69 % against 1.20 % (seeds 10, 12, 13 and 16 better, none
             worse), the two-camera full body's seed 2 0.20 % against 0.36 %, the other
-            multi-camera cases the same to the digit, at 0.96-0.98x the frames/s.
+            benchmark rows with several cameras the same to the digit, at 0.96-0.98x the
+            frames/s.
     """
 
     def __init__(
