@@ -87,7 +87,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limb-search-drop", type=_non_negative, default=None, metavar="D",
                    help="run the limb search on a frame whose fit (IoU) falls more than D below the "
                         "running fit (default 0.015 with --masks, 0.03 with --video: on segmented masks "
-                        "the fit is noisy, and 0.03 tracked as well at 1.5-2x the frames/s; use 0.03 "
+                        "the fit is noisy, and 0.03 tracked as well at 1.5-2.5x the frames/s; use 0.03 "
                         "for --masks from 'kms2pin segment' too)")
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
@@ -332,7 +332,7 @@ def run(args: argparse.Namespace) -> int:
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
         limb_search=False if args.no_limb_search else None,
         # on segmented masks the fit is noisy and a drop of 0.015 fired the search on many
-        # frames: 0.03 tracked ten segmented clips as well, at 1.5-2x the frames/s
+        # frames: 0.03 tracked ten segmented clips as well, at 1.5-2.5x the frames/s
         limb_search_drop=(0.03 if video_mode else 0.015) if args.limb_search_drop is None else args.limb_search_drop,
     )
     try:
