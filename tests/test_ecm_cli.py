@@ -56,7 +56,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     off (meta.json records what ran), and the body sizes then stay the spec's;
     --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
     the sizes are refined (default 5, 0: never), and a bad count is a usage error;
-    --limb-search-drop sets the search's fall in fit (default 0.015 with --masks).  Without
+    --limb-search-drop sets the search's fall in fit (default 0.015 with --masks), and
+    --no-limb-hypothesis turns off the limb-search hypothesis (on with the limb search).  Without
     the priors a one-camera run points at the upright prior (the model has joint limits)."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
@@ -66,7 +67,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
                 "--depth-prior", "0.02",
                 "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
-        "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03"],
+        "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03", "--no-limb-hypothesis"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -81,6 +82,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         assert meta["binned_hypotheses"] == (name == "binned")
         assert meta["size_every"] == (0 if name == "binned" else 5)
         assert meta["limb_search_drop"] == (0.03 if name == "binned" else 0.015)
+        assert meta["limb_hypothesis"] == (name == "default")
         if name == "binned":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":

@@ -89,6 +89,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "running fit (default 0.015 with --masks, 0.03 with --video: on segmented masks "
                         "the fit is noisy, and 0.03 tracked as well at 1.5-2.5x the frames/s; use 0.03 "
                         "for --masks from 'kms2pin segment' too)")
+    p.add_argument("--no-limb-hypothesis", action="store_true",
+                   help="with one camera, do not track the limb search's best candidate beside the pose "
+                        "when the fit falls a little (by 0.005; it becomes the pose once it fits better "
+                        "over the frames that follow)")
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")
@@ -331,6 +335,7 @@ def run(args: argparse.Namespace) -> int:
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
         limb_search=False if args.no_limb_search else None,
+        limb_hypothesis=False if args.no_limb_hypothesis else None,
         # on segmented masks the fit is noisy and a drop of 0.015 fired the search on many
         # frames: 0.03 tracked ten segmented clips as well, at 1.5-2.5x the frames/s
         limb_search_drop=(0.03 if video_mode else 0.015) if args.limb_search_drop is None else args.limb_search_drop,
@@ -344,7 +349,7 @@ def run(args: argparse.Namespace) -> int:
             "size_calibration": tracker.calibrate_sizes, "size_every": tracker.size_every,
             "mirror_hypothesis": tracker.mirror_hypothesis,
             "swap_hypothesis": tracker.swap_hypothesis, "limb_search": tracker.limb_search,
-            "limb_search_drop": tracker.limb_search_drop,
+            "limb_search_drop": tracker.limb_search_drop, "limb_hypothesis": tracker.limb_hypothesis,
             "binned_hypotheses": tracker.binned_hypotheses,
             "depth_prior": tracker.depth_prior,
             "upright": tracker.upright, "up": tracker.up.tolist(), "rest_prior": tracker.rest_prior,

@@ -117,7 +117,7 @@ def _log_quat(qr: np.ndarray) -> np.ndarray:
     return v * scale[:, None]
 
 
-_KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped"}
+_KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped", "limb": "limb-search"}
 _MERGE = np.radians(10.0)  # an alternative hypothesis this close to the main one is dropped
 #: limb search (``Tracker(limb_search=...)``): a joint closer to its rest angle than this
 #: is not swung; the IoU a swung limb must gain to be kept; the ECM iterations (binned
@@ -127,6 +127,9 @@ _LIMB_MIN = np.radians(5.0)
 _LIMB_GAIN = 0.003
 _LIMB_ITERATIONS = 3
 _LIMB_REFINED = 2
+#: a limb-search hypothesis (``Tracker(limb_hypothesis=...)``) whose running fit falls this
+#: far behind the main one's is dropped
+_LIMB_BEHIND = 0.02
 #: twin limbs whose first joints come this close, or pass each other, have crossed
 #: (side-on, they overlap); for this many frames after, their exchange is tried
 _CROSS_DEG = np.radians(8.0)
@@ -332,6 +335,26 @@ class Tracker:
             worse), the two-camera full body's seed 2 0.20 % against 0.36 %, the other
             benchmark rows with several cameras the same to the digit, at 0.96-0.98x the
             frames/s.
+        limb_hypothesis, limb_hypothesis_drop, limb_margin: on a frame whose fit falls
+            more than ``limb_hypothesis_drop`` below the running fit but not by
+            ``limb_search_drop``, the limb search's candidates are screened, and the
+            best, if it fits the frame better, is tracked beside the pose as an
+            alternative hypothesis (one at a time) instead of being kept at once.  It
+            becomes the pose when its running fit leads by ``limb_margin`` (flag
+            ``"switched to the limb-search hypothesis"``), and is dropped when it falls
+            0.02 behind or every joint comes within 10 deg of the pose's.  ``None``: on
+            with one camera (it needs the limb search).  Searching on a fall of 0.005 and
+            keeping the best at once lost as many one-camera hand seeds as it saved:
+            a candidate can fit one frame better and the next ones worse.  Measured
+            against it off, one camera, same session: the hand (seeds 0-19) no longer
+            lost (worst seed 4.4 % against 10.1 %, median 2.7 % both, 12 of 20 ending
+            within 1.5x of their start against 13); the full body with both priors
+            (ten seeds) 0.93 % against 1.00 %, worst seed 1.15 % against 1.68 %; with
+            the upright prior alone 0.80 % against 0.89 %, but one seed of ten ends at
+            2.47x its start; with limits only 1.29 % against 1.83 % (five); the thesis's
+            full body without priors 1.24 % against 1.08 %; the lower bodies with limits
+            or priors the same to the digit; at 0.78-0.88x the frames/s
+            (docs/tracking.md).
     """
 
     def __init__(
@@ -377,6 +400,9 @@ class Tracker:
         rest_prior: float = 0.0,
         limb_search: bool | None = None,
         limb_search_drop: float = 0.015,
+        limb_hypothesis: bool | None = None,
+        limb_hypothesis_drop: float = 0.005,
+        limb_margin: float = 0.005,
     ):
         if prediction not in ("constant_velocity", "previous"):
             raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
@@ -404,6 +430,10 @@ class Tracker:
         self.up = up / norm
         self.limb_search = True if limb_search is None else bool(limb_search)
         self.limb_search_drop = float(limb_search_drop)
+        if limb_hypothesis is None:
+            limb_hypothesis = len(self.cameras) == 1
+        self.limb_hypothesis = bool(limb_hypothesis) and self.limb_search
+        self.limb_hypothesis_drop, self.limb_margin = float(limb_hypothesis_drop), float(limb_margin)
         # limbs: joint name -> (its q index, q indices of the revolute joints below it)
         m = robot.model
         self._limbs = {}
@@ -997,10 +1027,14 @@ class Tracker:
             coarse = self._coarse(masks)
             q, it, converged = self._ecm(q, masks, timings, coarse=coarse)
             fit = self._iou(q, masks)
-            moved = ()
+            moved, spawn = (), None
             if self.limb_search and self.frame > 0 and fit < self._score - self.limb_search_drop:
                 q, fit, limb = self._swing_limbs(q, fit, masks, timings)
                 moved = self._limbs_moved(q, limb)
+            elif self.limb_hypothesis and self.frame > 0 and "limb" not in self._alts \
+                    and fit < self._score - self.limb_hypothesis_drop:
+                # a smaller fall: the best candidate is not kept but tracked beside this pose
+                spawn = self._swing_limbs(q, fit, masks, timings, screen_only=True)
             if self.limb_search and self.frame > 0 and len(self.cameras) == 1:
                 # after twins cross, only one view can mistake one for the other
                 q, fit, limb = self._exchange_crossed_limbs(q, fit, masks, timings)
@@ -1008,8 +1042,8 @@ class Tracker:
                 # twins exchanged twice this frame are back in place: no exchange to report
                 moved = () if again and again == moved else moved + again
             flags += moved
-            if self.mirror_hypothesis or self.swap_hypothesis:
-                q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse)
+            if self.mirror_hypothesis or self.swap_hypothesis or self.limb_hypothesis:
+                q, fit, switched = self._hypotheses_step(q, fit, masks, timings, coarse, spawn)
                 if switched:
                     flags += (f"switched to the {_KIND_WORDS[switched]} hypothesis",)
             else:
@@ -1110,6 +1144,8 @@ class Tracker:
             kinds["mirror"] = (self._mirror, self.mirror_margin)
         if self.swap_hypothesis:
             kinds["swap"] = (self._swap, self.swap_margin)
+        if self.limb_hypothesis:  # spawned by the limb search (_hypotheses_step's spawn), not as a flip
+            kinds["limb"] = (None, self.limb_margin)
         return kinds
 
     def _merged(self, kind: str, qa: np.ndarray, q: np.ndarray) -> bool:
@@ -1118,19 +1154,23 @@ class Tracker:
             return False
         if kind == "mirror":
             return True
+        if kind == "limb":
+            return float(np.abs(pin.difference(self.robot.model, qa, q)[self._joint_dofs]).max()) < _MERGE
         a, b = self._swap_pairs
         return float(np.abs(np.concatenate([qa[a] - q[a], qa[b] - q[b]])).max()) < _MERGE
 
     def _hypotheses_step(
-        self, q: np.ndarray, fit: float, masks, timings: dict, coarse=None
+        self, q: np.ndarray, fit: float, masks, timings: dict, coarse=None, spawn=None
     ) -> tuple[np.ndarray, float, str]:
         """Track the alternative hypotheses alongside the main one (``q``, its ``fit``
         this frame); return the pose to report, its fit and the kind switched to ("" if
-        none).  An alternative is spawned as the flip of the main one, tracked with its
-        own constant-velocity prediction, and dropped when it merges with the main one
-        or falls well behind; the one whose running fit leads by more than its margin
-        becomes the main one."""
+        none).  An alternative is spawned as the flip of the main one (the limb-search
+        hypothesis as ``spawn``, the limb search's (configuration, fit, limb) this
+        frame), tracked with its own constant-velocity prediction, and dropped when it
+        merges with the main one or falls well behind; the one whose running fit leads
+        by more than its margin becomes the main one."""
         a = self.hypothesis_smoothing
+        last_score = self._score
         self._running_fit(fit)
         switched = ""
         if self.frame == 0:
@@ -1144,7 +1184,8 @@ class Tracker:
         for kind, (flip, margin) in kinds.items():
             alt = self._alts.get(kind)
             if alt is None:  # spawn: the flipped image of this frame's fit and of the last frame's
-                self._alts[kind] = [flip(q), flip(self.q), self._score, None]
+                if flip is not None:
+                    self._alts[kind] = [flip(q), flip(self.q), self._score, None]
                 continue
             qa, pa, sc, _ = alt
             pred = qa
@@ -1168,11 +1209,18 @@ class Tracker:
             for kind in list(self._alts):  # the others were flips of the old main one
                 if kind != best:
                     del self._alts[kind]
+        if spawn is not None and spawn[2] and not switched and "limb" not in self._alts:
+            qs, fs, limb = spawn
+            last = self.q.copy()  # the last frame's pose with the moved limbs as in qs: no velocity
+            for iq, below in self._moved_limbs(limb)[0]:
+                last[iq], last[below] = qs[iq], qs[below]
+            self._alts["limb"] = [qs, last, (1.0 - a) * last_score + a * fs, fs]
         for kind in list(self._alts):
             qa, _, sc, _ = self._alts[kind]
             # a hypothesis that is (or merged into) the main one, or fell well behind, is
             # dropped; the next frame spawns a fresh one
-            if self._merged(kind, qa, q) or sc < self._score - 0.05:
+            behind = _LIMB_BEHIND if kind == "limb" else 0.05
+            if self._merged(kind, qa, q) or sc < self._score - behind:
                 del self._alts[kind]
         return q, fit, switched
 
@@ -1219,16 +1267,21 @@ class Tracker:
         and return the frame's flag (none if ``limb`` is "")."""
         if not limb:
             return ()
-        reset = limb.endswith(_LIMB_RESET)
-        moved = limb.removesuffix(_LIMB_RESET).split(_LIMB_AND)
-        for name in moved:
-            iq, below = self._limbs[name]
+        indices, moved, reset = self._moved_limbs(limb)
+        for iq, below in indices:
             self.q[iq], self.q[below] = q[iq], q[below]
         if reset:
             return (f"put the joints below '{moved[0]}' back at rest",)
         if len(moved) == 1:
             return (f"swung '{limb}' the other way",)
         return (f"swapped '{moved[0]}' and '{moved[1]}'",)
+
+    def _moved_limbs(self, limb: str) -> tuple[list, list[str], bool]:
+        """The limbs a limb-search label (:meth:`_swing_limbs`) moved: their (first
+        joint's q index, the q indices below it), their joints' names, and whether the
+        joints below were put back at rest."""
+        names = limb.removesuffix(_LIMB_RESET).split(_LIMB_AND)
+        return [self._limbs[n] for n in names], names, limb.endswith(_LIMB_RESET)
 
     def _running_fit(self, fit: float) -> None:
         """Fold this frame's fit into the main hypothesis's running fit (exponentially
@@ -1268,7 +1321,9 @@ class Tracker:
                 out.append((name, self.robot.clamp(c)))
         return out
 
-    def _swing_limbs(self, q: np.ndarray, fit: float, masks, timings: dict) -> tuple[np.ndarray, float, str]:
+    def _swing_limbs(
+        self, q: np.ndarray, fit: float, masks, timings: dict, screen_only: bool = False
+    ) -> tuple[np.ndarray, float, str]:
         """Limb search: try every limb swung the other way or with the joints below its
         first put back at rest, and every pair of twin limbs exchanged
         (:meth:`_limb_candidates`), each screened by a few ECM iterations on
@@ -1281,7 +1336,8 @@ class Tracker:
         1.80x its start, against 1.04x in its own slot.)
         Returns the configuration, its fit and the limb's joint ("" if none was kept;
         ``"<joint> reset"`` for a limb put back at rest below its first joint,
-        ``"<left> and <right>"`` for twin limbs exchanged)."""
+        ``"<left> and <right>"`` for twin limbs exchanged).  ``screen_only``: the best
+        screened candidate, unrefined (the limb-search hypothesis's start)."""
         cands = self._limb_candidates(q)
         binned = self._binned_views(masks)
         if not cands or binned is None:
@@ -1291,6 +1347,9 @@ class Tracker:
             qc, _, _ = self._ecm(c, masks, timings, _LIMB_ITERATIONS, binned, binned=True)
             screened.append((self._iou(qc, masks), name, qc))
         screened.sort(key=lambda x: -x[0])
+        if screen_only:
+            fc, name, qc = screened[0]
+            return (qc, fc, name) if fc > fit + _LIMB_GAIN else (q, fit, "")
         slots = [_LIMB_REFINED, 1, 1]  # refined per kind (swing, exchange, reset), best screened first
         refined = []
         for s in screened:

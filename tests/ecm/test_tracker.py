@@ -877,16 +877,16 @@ def test_limb_search_unfolds_a_finger_folded_the_wrong_way(seed, frame, off_deg)
     assert joint_errors(robot, q, qt).max() < 10.0 and centre_error(robot, q, qt) < 1.0
 
 
-def _folded_finger_frame(cams, finger, off_deg, search):
+def _folded_finger_frame(cams, finger, off_deg, search, **options):
     """The hand's random motion (seed 0) tracked from the truth on clean silhouettes for
     frames 38 and 39, then frame 40 started with ``finger``'s middle and tip joints
-    ``off_deg`` off; returns the tracker, frame 40's result, the true configuration
-    and the tip's q index."""
+    ``off_deg`` off; returns the tracker (``options`` passed on), frame 40's result, the
+    true configuration and the tip's q index."""
     robot = _robot("jplhand")
     motion = make_motion(robot, "random", 300, np.random.default_rng(0))
     m = robot.model
     mid, tip = (m.joints[m.getJointId(n)].idx_q for n in (f"midFinger{finger}_lowerJoint", f"tip{finger}_joint"))
-    tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search)
+    tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search, **options)
     for f in (38, 39):
         assert not tr.step(render(robot, motion[f], cams)).flags
     tr.q[mid] += np.radians(off_deg[0])
@@ -940,6 +940,43 @@ def test_a_finger_put_back_at_rest_is_flagged_and_carries_no_velocity():
     v, m = tr._velocity(), tr.robot.model
     for n in ("midFinger1_lowerJoint", "tip1_joint"):
         assert v[m.joints[m.getJointId(n)].idx_v] == 0.0
+
+
+@pytest.mark.parametrize("hypothesis", [True, False])
+def test_a_limb_search_candidate_is_tracked_beside_the_pose_and_becomes_it_when_it_fits_better(hypothesis):
+    """One camera, clean silhouettes of the hand, the first finger folded the wrong way
+    on frame 40 as above, but the search on a falling fit kept out (its drop set to 1):
+    the fit falls by more than ``limb_hypothesis_drop``, so the limb search's best
+    screened candidate (the finger put back at rest) is tracked beside the pose, with no
+    velocity in the moved finger, and becomes the pose once its running fit leads by
+    ``limb_margin`` (flag).  Without the hypothesis the fold stays."""
+    cams = [Camera.default()]
+    tr, r, qt, tip = _folded_finger_frame(cams, 1, (-40.0, 100.0), True, limb_search_drop=1.0,
+                                          limb_hypothesis=hypothesis)
+    assert not r.flags and np.degrees(abs(r.q[tip] - qt[tip])) > 60.0
+    if hypothesis:
+        qa, last, score, fa = tr._alts["limb"]
+        assert fa > r.fit + 0.003 and score > tr._score  # it fit this frame better
+        assert np.degrees(abs(qa[tip] - qt[tip])) < 6.0 and last[tip] == qa[tip]  # measured 4.8 deg
+    else:
+        assert not tr._alts
+    motion = make_motion(tr.robot, "random", 300, np.random.default_rng(0))
+    flags = []
+    for f in range(41, 46):
+        r = tr.step(render(tr.robot, motion[f], cams))
+        flags += r.flags
+    err = np.degrees(abs(r.q[tip] - motion[45][tip]))
+    if hypothesis:
+        assert flags == ["switched to the limb-search hypothesis"] and err < 5.0
+    else:
+        assert not flags and err > 60.0
+
+
+def test_the_limb_hypothesis_is_on_with_one_camera_and_the_limb_search():
+    robot = _robot("jplhand")
+    assert Tracker(robot, [Camera.default()]).limb_hypothesis
+    assert not Tracker(robot, _cams(robot, 2)).limb_hypothesis
+    assert not Tracker(robot, [Camera.default()], limb_search=False, limb_hypothesis=True).limb_hypothesis
 
 
 def test_arms_that_have_just_crossed_get_their_exchange_tried():
