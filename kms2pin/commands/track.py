@@ -32,7 +32,7 @@ import numpy as np
 from ..cli import UsageError
 from ..ecm.camera import Camera
 from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_conic
-from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
+from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ._common import add_spec_argument, read_model
@@ -328,17 +328,18 @@ def run(args: argparse.Namespace) -> int:
         q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
     # body sizes are measured on the first frame only where its pose is known (the rest pose
     # or --init POSE): at a pose found by the search they would absorb its errors
+    options = dict(SEGMENTED_MASKS) if video_mode else {}  # else Tracker's own defaults
+    if args.size_every is not None:
+        options["size_every"] = args.size_every
+    if args.limb_search_drop is not None:
+        options["limb_search_drop"] = args.limb_search_drop
     tracker = Tracker(
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
-        size_every=(0 if video_mode else 5) if args.size_every is None else args.size_every,
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,
         swap_hypothesis=False if args.no_swap_hypothesis else None, binned_hypotheses=args.binned_hypotheses,
         depth_prior=args.depth_prior, upright=args.upright, up=up, rest_prior=args.rest_prior,
         limb_search=False if args.no_limb_search else None,
-        limb_hypothesis=False if args.no_limb_hypothesis else None,
-        # on segmented masks the fit is noisy and a drop of 0.015 fired the search on many
-        # frames: 0.03 tracked ten segmented clips as well, at 1.5-2.5x the frames/s
-        limb_search_drop=(0.03 if video_mode else 0.015) if args.limb_search_drop is None else args.limb_search_drop,
+        limb_hypothesis=False if args.no_limb_hypothesis else None, **options,
     )
     try:
         out.mkdir(parents=True, exist_ok=True)

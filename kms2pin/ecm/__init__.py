@@ -27,7 +27,7 @@ from kms2pin.ecm.projection import (
 )
 from kms2pin.ecm.raycast import render_labels, render_mask
 from kms2pin.ecm.synth import synthesize
-from kms2pin.ecm.tracker import Tracker
+from kms2pin.ecm.tracker import SEGMENTED_MASKS, Tracker
 from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 
 __all__ = [
@@ -38,6 +38,7 @@ __all__ = [
     "FrameResult",
     "MOTIONS",
     "ProjectionError",
+    "SEGMENTED_MASKS",
     "Tracker",
     "Trajectory",
     "TrajectoryCsvWriter",
