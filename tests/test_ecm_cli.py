@@ -57,7 +57,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     --binned-hypotheses tracks the hypotheses on binned masks; --size-every sets how often
     the sizes are refined (default 5, 0: never), and a bad count is a usage error;
     --limb-search-drop sets the search's fall in fit (default 0.015 with --masks), and
-    --no-limb-hypothesis turns off the limb-search hypothesis (on with the limb search).  Without
+    --no-limb-hypothesis turns off the limb-search hypothesis (on with the limb search);
+    --tol-px sets the outlines' test of convergence (0: the joints' test alone).  Without
     the priors a one-camera run points at the upright prior (the model has joint limits)."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
@@ -65,9 +66,10 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     runs = {
         "default": [],
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
-                "--depth-prior", "0.02",
+                "--depth-prior", "0.02", "--tol-px", "0.5",
                 "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
-        "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03", "--no-limb-hypothesis"],
+        "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03", "--no-limb-hypothesis",
+                   "--tol-px", "0"],
     }
     for name, flags in runs.items():
         out = tmp_path / name
@@ -83,6 +85,7 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         assert meta["size_every"] == (0 if name == "binned" else 5)
         assert meta["limb_search_drop"] == (0.03 if name == "binned" else 0.015)
         assert meta["limb_hypothesis"] == (name == "default")
+        assert meta["tol_px"] == {"default": 0.25, "off": 0.5, "binned": None}[name]
         if name == "binned":
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"]
         elif name == "default":
@@ -197,7 +200,7 @@ def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path,
 
 @pytest.mark.parametrize(
     "flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"], ["--rest-prior", "-0.01"],
-              ["--limb-search-drop", "-0.01"]]
+              ["--limb-search-drop", "-0.01"], ["--tol-px", "-0.1"]]
 )
 def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, flags):
     out = tmp_path / "out"
