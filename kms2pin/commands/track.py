@@ -331,8 +331,6 @@ def run(args: argparse.Namespace) -> int:
     init_fit = None
     if auto:
         q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
-    # body sizes are measured on the first frame only where its pose is known (the rest pose
-    # or --init POSE): at a pose found by the search they would absorb its errors
     options = dict(SEGMENTED_MASKS) if video_mode else {}  # else Tracker's own defaults
     if args.size_every is not None:
         options["size_every"] = args.size_every
@@ -340,6 +338,8 @@ def run(args: argparse.Namespace) -> int:
         options["limb_search_drop"] = args.limb_search_drop
     if args.tol_px is not None:
         options["tol_px"] = args.tol_px or None  # 0: the joints' test alone
+    # body sizes are measured on the first frame only where its pose is known (the rest pose
+    # or --init POSE): at a pose found by the search they would absorb its errors
     tracker = Tracker(
         robot, cameras, q0=q0, calibrate_sizes=not (args.no_size_calibration or auto),
         mirror_hypothesis=False if args.no_mirror_hypothesis else None,

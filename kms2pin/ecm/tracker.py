@@ -136,14 +136,14 @@ _LIMB_BEHIND = 0.02
 #: (side-on, they overlap); for this many frames after, their exchange is tried
 _CROSS_DEG = np.radians(8.0)
 _CROSS_FRAMES = 4
+_LIMB_AND = " and "  # joins the two joints of a twin limbs' exchange
+_LIMB_RESET = " reset"  # follows the joint of a limb whose joints below it were put back at rest
 #: Tracker options for masks from a real segmentation (``track --video`` uses them): its
 #: errors are partly systematic (the gaps between the arms and the trunk filled in), and
 #: the size refinement would take them up; its fit is noisy, and the limb search on a
 #: drop of 0.015 fired on many frames, where 0.03 tracked ten segmented clips as well at
 #: 1.5-2.5x the frames/s
 SEGMENTED_MASKS = {"size_every": 0, "limb_search_drop": 0.03}
-_LIMB_AND = " and "  # joins the two joints of a twin limbs' exchange
-_LIMB_RESET = " reset"  # follows the joint of a limb whose joints below it were put back at rest
 
 
 class Tracker:
