@@ -118,6 +118,27 @@ def test_one_camera_note_names_both_priors_for_a_model_without_limits(tmp_path, 
     assert "--upright 0.1 --rest-prior 0.01 hold" in capsys.readouterr().err
 
 
+def test_evaluate_splits_off_the_depth_error_with_one_camera(tmp_path, cams2, capsys):
+    """With one camera, evaluate also reports the error along its viewing ray and what is
+    left without it (their sum bounds the centre error); with two it does not."""
+    for name, cams in (("one", []), ("two", ["--cameras", cams2])):
+        masks = tmp_path / f"m{name}"
+        assert main(["synth", LOWER, "--frames", "3", "--noise", "0.02", "--seed", "1", *cams, "-o", str(masks)]) == 0
+        out = tmp_path / name
+        assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
+        capsys.readouterr()
+        assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json"]) == 0
+        rep = json.loads(capsys.readouterr().out)
+        if name == "two":
+            assert "depth_error_pct" not in rep
+            continue
+        total, depth, rest = (rep[k] for k in ("mean_centre_error_pct", "depth_error_pct",
+                                               "centre_error_without_depth_pct"))
+        assert 0.0 < depth <= total + 1e-9 <= depth + rest + 2e-9  # |mean error . ray| <= mean |error|
+        assert main(["evaluate", str(out), str(masks / "truth.csv")]) == 0
+        assert "one camera: depth error (along its viewing ray)" in capsys.readouterr().out
+
+
 def test_synth_layout_one_camera(tmp_path):
     d = tmp_path / "m"
     assert main(["synth", LOWER, "--frames", "2", "--noise", "0.05", "--size-mismatch", "0.1", "-o", str(d)]) == 0

@@ -8,6 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
+from ..ecm.camera import Camera
 from ..ecm.evaluate import evaluate
 from ..ecm.tracker import Trajectory
 from ..errors import InputDataError
@@ -43,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
     truth = Trajectory.from_csv(robot, args.truth)
     first = int(meta.get("first_frame", 0))
     truth = Trajectory(robot, truth.q[first:])
-    rep = evaluate(robot, tracked, truth)
+    # one camera: how much of the error is the distance along its viewing ray
+    cameras = Camera.list_from_json(out / "cameras.json") if (out / "cameras.json").is_file() else []
+    rep = evaluate(robot, tracked, truth, cameras[0].centre if len(cameras) == 1 else None)
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
@@ -54,4 +57,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"mean body-centre error: {rep['mean_centre_error_pct']:.3f} % of height")
     print(f"worst frame: {rep['worst_frame']} ({rep['worst_frame_error_pct']:.3f} %)")
     print(f"last-30 / first-30 error ratio: {rep['first_vs_last_ratio']:.2f}")
+    if "depth_error_pct" in rep:
+        print(f"one camera: depth error (along its viewing ray) {rep['depth_error_pct']:.3f} % of height; "
+              f"without it {rep['centre_error_without_depth_pct']:.3f} %, last-30 / first-30 "
+              f"{rep['first_vs_last_ratio_without_depth']:.2f}")
     return 0

@@ -10,12 +10,19 @@ from ..robot import Robot
 from .tracker import Trajectory
 
 
-def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory) -> dict:
+def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre=None) -> dict:
     """Per-joint angle RMSE (deg), body-centre error (% of height) overall, per frame and worst.
 
     Revolute angle errors wrap to (-180°, 180°] (a tracked angle 360° off is exact).
 
     Frames are compared in order; the shorter trajectory sets the count.
+
+    ``camera_centre`` (one camera's centre, world frame): also split each frame's error
+    into the depth error, the bodies' mean centre's error along the ray from the camera
+    through the true mean centre (``depth_error_pct``: its mean absolute value), and
+    what is left with that shift taken out of every body (``centre_error_without_depth_pct``
+    and its ``first_vs_last_ratio_without_depth``).  One view gives the distance only
+    through the apparent size, so with one camera the depth error is most of the error.
     """
     n = min(len(tracked), len(truth))
     if n == 0:
@@ -32,14 +39,32 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory) -> dict:
         j = model.joints[jid]
         if j.nq == 1:
             joints[model.names[jid]] = float(np.degrees(np.sqrt(np.mean(d[:, j.idx_v] ** 2))))
-    per_frame = np.empty(n)
+    per_frame, depth, without = np.empty(n), np.empty(n), np.empty(n)
+    scale = 100.0 / robot.height
     for k in range(n):
         a = robot.maximal_coordinates(tracked.q[k])[:, :3]
         b = robot.maximal_coordinates(truth.q[k])[:, :3]
-        per_frame[k] = np.linalg.norm(a - b, axis=1).mean() / robot.height * 100
+        per_frame[k] = np.linalg.norm(a - b, axis=1).mean() * scale
+        if camera_centre is not None:
+            ray = b.mean(axis=0) - np.asarray(camera_centre, dtype=float)
+            ray /= max(float(np.linalg.norm(ray)), 1e-300)
+            dz = float((a.mean(axis=0) - b.mean(axis=0)) @ ray)
+            depth[k] = abs(dz) * scale
+            without[k] = np.linalg.norm(a - dz * ray - b, axis=1).mean() * scale
     rev = np.array(list(joints.values()))
     m = min(30, n)
-    head, tail = per_frame[:m].mean(), per_frame[-m:].mean()
+
+    def ratio(e: np.ndarray) -> float:
+        head, tail = e[:m].mean(), e[-m:].mean()
+        return float(tail / head) if head > 0 else float("inf")
+
+    extra = {}
+    if camera_centre is not None:
+        extra = {
+            "depth_error_pct": float(depth.mean()),
+            "centre_error_without_depth_pct": float(without.mean()),
+            "first_vs_last_ratio_without_depth": ratio(without),
+        }
     return {
         "frames": n,
         "joint_rmse_deg": joints,
@@ -47,6 +72,7 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory) -> dict:
         "mean_centre_error_pct": float(per_frame.mean()),
         "worst_frame": int(per_frame.argmax()),
         "worst_frame_error_pct": float(per_frame.max()),
-        "first_vs_last_ratio": float(tail / head) if head > 0 else float("inf"),
+        "first_vs_last_ratio": ratio(per_frame),
         "per_frame_centre_error_pct": per_frame.tolist(),
+        **extra,
     }
