@@ -125,12 +125,12 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
         f"{iters:.1f} it/fr | E {split['e_step'] / wall:.0%} M {split['m_step'] / wall:.0%} "
         f"S {split['static_update'] / wall:.0%} sizes {split['sizes'] / wall:.0%} | last 30 fit {fit_tracked:.3f}, "
         f"true poses' {fit_truth:.3f}"
-        + (f" | depth err {rep['depth_error_pct']:.2f} %, without it {rep['centre_error_without_depth_pct']:.2f} % "
-           f"and last/first {rep['first_vs_last_ratio_without_depth']:.2f}" if centre is not None else ""),
+        + (f" | along the rays {rep['depth_error_pct']:.2f} %, across {rep['centre_error_across_rays_pct']:.2f} % "
+           f"(last/first {rep['first_vs_last_ratio_across_rays']:.2f})" if centre is not None else ""),
         flush=True,
     )
     return (rep["mean_centre_error_pct"], rep["revolute_rmse_deg"], frames / wall, rep["first_vs_last_ratio"],
-            rep.get("first_vs_last_ratio_without_depth", np.nan))
+            rep.get("first_vs_last_ratio_across_rays", np.nan))
 
 
 def main():
@@ -169,13 +169,13 @@ def main():
     for name in a.only.split(",") if a.only else CASES:
         rows = [run_case(name, a.frames, a.noise, a.size_mismatch, a.level, seed, **options) for seed in seeds]
         if len(rows) > 1:
-            err, rmse, fps, drift, drift_lateral = np.array(rows).T
+            err, rmse, fps, drift, drift_across = np.array(rows).T
             print(
                 f"{name:{_WIDTH}s} median of {len(rows)} seeds | centre err {np.median(err):.3f} % (max {err.max():.3f}) | "
                 f"rev RMSE {np.median(rmse):.2f} deg (max {rmse.max():.2f}) | last/first at most 1.5 on "
                 f"{int(np.sum(drift <= 1.5))} of {len(rows)} (max {drift.max():.2f}"
-                + (f"; without the depth error on {int(np.sum(drift_lateral <= 1.5))})"
-                   if np.isfinite(drift_lateral).all() else ")")
+                + (f"; across the rays on {int(np.sum(drift_across <= 1.5))})"
+                   if np.isfinite(drift_across).all() else ")")
                 + f" | {np.median(fps):.1f} fr/s",
                 flush=True,
             )

@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"worst frame: {rep['worst_frame']} ({rep['worst_frame_error_pct']:.3f} %)")
     print(f"last-30 / first-30 error ratio: {rep['first_vs_last_ratio']:.2f}")
     if "depth_error_pct" in rep:
-        print(f"one camera: depth error (along its viewing ray) {rep['depth_error_pct']:.3f} % of height; "
-              f"without it {rep['centre_error_without_depth_pct']:.3f} %, last-30 / first-30 "
-              f"{rep['first_vs_last_ratio_without_depth']:.2f}")
+        print(f"one camera: along its viewing rays (depth) {rep['depth_error_pct']:.3f} % of height; across "
+              f"them {rep['centre_error_across_rays_pct']:.3f} %, last-30 / first-30 "
+              f"{rep['first_vs_last_ratio_across_rays']:.2f}")
     return 0

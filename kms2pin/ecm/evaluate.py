@@ -17,12 +17,13 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre
 
     Frames are compared in order; the shorter trajectory sets the count.
 
-    ``camera_centre`` (one camera's centre, world frame): also split each frame's error
-    into the depth error, the bodies' mean centre's error along the ray from the camera
-    through the true mean centre (``depth_error_pct``: its mean absolute value), and
-    what is left with that shift taken out of every body (``centre_error_without_depth_pct``
-    and its ``first_vs_last_ratio_without_depth``).  One view gives the distance only
-    through the apparent size, so with one camera the depth error is most of the error.
+    ``camera_centre`` (one camera's centre, world frame): also split each body's centre
+    error into its part along the ray from the camera through the body's true centre
+    (``depth_error_pct``, the mean of its size) and its part across that ray, which the
+    camera sees directly (``centre_error_across_rays_pct`` and its
+    ``first_vs_last_ratio_across_rays``); the two parts are orthogonal, so each is at
+    most the centre error.  One view gives a distance only through the apparent size,
+    so with one camera the depth error is most of the error.
     """
     n = min(len(tracked), len(truth))
     if n == 0:
@@ -39,18 +40,18 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre
         j = model.joints[jid]
         if j.nq == 1:
             joints[model.names[jid]] = float(np.degrees(np.sqrt(np.mean(d[:, j.idx_v] ** 2))))
-    per_frame, depth, without = np.empty(n), np.empty(n), np.empty(n)
+    per_frame, depth, across = np.empty(n), np.empty(n), np.empty(n)
     scale = 100.0 / robot.height
     for k in range(n):
         a = robot.maximal_coordinates(tracked.q[k])[:, :3]
         b = robot.maximal_coordinates(truth.q[k])[:, :3]
         per_frame[k] = np.linalg.norm(a - b, axis=1).mean() * scale
         if camera_centre is not None:
-            ray = b.mean(axis=0) - np.asarray(camera_centre, dtype=float)
-            ray /= max(float(np.linalg.norm(ray)), 1e-300)
-            dz = float((a.mean(axis=0) - b.mean(axis=0)) @ ray)
-            depth[k] = abs(dz) * scale
-            without[k] = np.linalg.norm(a - dz * ray - b, axis=1).mean() * scale
+            rays = b - np.asarray(camera_centre, dtype=float)
+            rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-300)[:, None]
+            along = np.sum((a - b) * rays, axis=1)
+            depth[k] = np.abs(along).mean() * scale
+            across[k] = np.linalg.norm(a - b - along[:, None] * rays, axis=1).mean() * scale
     rev = np.array(list(joints.values()))
     m = min(30, n)
 
@@ -62,8 +63,8 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre
     if camera_centre is not None:
         extra = {
             "depth_error_pct": float(depth.mean()),
-            "centre_error_without_depth_pct": float(without.mean()),
-            "first_vs_last_ratio_without_depth": ratio(without),
+            "centre_error_across_rays_pct": float(across.mean()),
+            "first_vs_last_ratio_across_rays": ratio(across),
         }
     return {
         "frames": n,

@@ -13,7 +13,7 @@ from kms2pin.ecm.tracker import Trajectory
 from kms2pin.robot import load
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
-CENTRE = np.array([0.3, -0.2, 0.0])  # a camera's centre
+FAR = 1e6  # a camera this far off sees every body along (nearly) the same ray
 
 
 @pytest.fixture(scope="module")
@@ -22,46 +22,62 @@ def hand():
     return robot, make_motion(robot, "random", 40, np.random.default_rng(0))
 
 
-def _shifted(robot, truth, step):
-    """The truth with the whole body moved by ``step(k, true mean centre)`` on frame k."""
+def _shifted(truth, step):
+    """The truth with the whole body moved by ``step(k)`` on frame k."""
     q = truth.copy()
     for k in range(len(q)):
-        q[k, :3] += step(k, robot.maximal_coordinates(truth[k])[:, :3].mean(axis=0))
+        q[k, :3] += step(k)
     return q
 
 
-def test_a_body_moved_along_the_viewing_ray_is_all_depth_error(hand):
-    """Every body moved by d along the ray from the camera through the true mean centre:
-    the centre error is d on every body, all of it depth; without it nothing is left."""
+def test_a_body_moved_along_the_viewing_rays_is_all_depth_error(hand):
+    """A camera far off along -u: every body moved by d along u moves along its own
+    ray, so the centre error d is all depth, none across the rays."""
     robot, truth = hand
+    u = np.array([0.2, -0.3, 1.0]) / np.linalg.norm([0.2, -0.3, 1.0])
+    centre = robot.q_rest[:3] - FAR * u
     d = 0.01 * robot.height * np.linspace(1.0, 3.0, len(truth))  # 1 % of the height, growing to 3 %
-
-    def along(k, mean):
-        ray = mean - CENTRE
-        return d[k] * ray / np.linalg.norm(ray)
-
-    rep = evaluate(robot, Trajectory(robot, _shifted(robot, truth, along)), Trajectory(robot, truth), CENTRE)
+    tracked = Trajectory(robot, _shifted(truth, lambda k: d[k] * u))
+    rep = evaluate(robot, tracked, Trajectory(robot, truth), centre)
     np.testing.assert_allclose(rep["per_frame_centre_error_pct"], d / robot.height * 100, rtol=1e-9)
     assert rep["depth_error_pct"] == pytest.approx(rep["mean_centre_error_pct"], rel=1e-9)
-    assert rep["centre_error_without_depth_pct"] < 1e-9
+    assert rep["centre_error_across_rays_pct"] < 1e-4 * rep["mean_centre_error_pct"]
     assert rep["first_vs_last_ratio"] == pytest.approx(d[-30:].mean() / d[:30].mean())
     assert rep["revolute_rmse_deg"] < 1e-9
 
 
-def test_a_body_moved_across_the_ray_has_no_depth_error(hand):
-    """Moved at right angles to that ray, the error is all left without the depth."""
+def test_a_body_moved_across_the_viewing_rays_has_no_depth_error(hand):
     robot, truth = hand
-
-    def across(k, mean):
-        ray = mean - CENTRE
-        side = np.cross(ray, [0.0, 1.0, 0.0])
-        return 0.02 * robot.height * side / np.linalg.norm(side)
-
-    rep = evaluate(robot, Trajectory(robot, _shifted(robot, truth, across)), Trajectory(robot, truth), CENTRE)
+    u = np.array([0.0, 0.0, 1.0])
+    centre = robot.q_rest[:3] - FAR * u
+    tracked = Trajectory(robot, _shifted(truth, lambda k: 0.02 * robot.height * np.array([1.0, 0.0, 0.0])))
+    rep = evaluate(robot, tracked, Trajectory(robot, truth), centre)
     assert rep["mean_centre_error_pct"] == pytest.approx(2.0, rel=1e-9)
-    assert rep["depth_error_pct"] < 1e-9
-    assert rep["centre_error_without_depth_pct"] == pytest.approx(2.0, rel=1e-9)
-    assert rep["first_vs_last_ratio_without_depth"] == pytest.approx(1.0)
+    assert rep["depth_error_pct"] < 1e-4
+    assert rep["centre_error_across_rays_pct"] == pytest.approx(2.0, rel=1e-6)
+    assert rep["first_vs_last_ratio_across_rays"] == pytest.approx(1.0)
+
+
+def test_the_depth_and_across_parts_are_orthogonal(hand):
+    """Random joint and root errors, a camera near the hand: per body the two parts
+    are orthogonal (the error is their hypotenuse), so the centre error lies between
+    the hypotenuse of their means and their sum."""
+    robot, truth = hand
+    rng = np.random.default_rng(3)
+    q = truth.copy()
+    q[:, 7:] += rng.normal(0.0, 0.2, q[:, 7:].shape)
+    q[:, :3] += rng.normal(0.0, 0.05 * robot.height, (len(q), 3))
+    centre = robot.q_rest[:3] - [0.0, 0.0, 10.0]
+    rep = evaluate(robot, Trajectory(robot, q), Trajectory(robot, truth), centre)
+    total, depth, across = rep["mean_centre_error_pct"], rep["depth_error_pct"], rep["centre_error_across_rays_pct"]
+    # each body's own ray, not one ray for the whole hand: the part along it by the cosine rule
+    a = np.array([robot.maximal_coordinates(x)[:, :3] for x in q])
+    b = np.array([robot.maximal_coordinates(x)[:, :3] for x in truth])
+    ra, rb, e = (np.linalg.norm(x, axis=2) for x in (a - centre, b - centre, a - b))
+    along = (ra**2 - rb**2 - e**2) / (2 * rb)
+    assert depth == pytest.approx(np.abs(along).mean() / robot.height * 100, rel=1e-9)
+    assert 0.0 < depth < total and 0.0 < across < total < depth + across
+    assert np.hypot(depth, across) <= total * (1 + 1e-12)  # the norm of a mean is at most the mean of norms
 
 
 def test_without_a_camera_there_is_no_depth_split_and_angles_wrap(hand):
