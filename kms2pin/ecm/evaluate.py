@@ -10,7 +10,9 @@ from ..robot import Robot
 from .tracker import Trajectory
 
 
-def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre=None) -> dict:
+def evaluate(
+    robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre: np.ndarray | None = None
+) -> dict:
     """Per-joint angle RMSE (deg), body-centre error (% of height) overall, per frame and worst.
 
     Revolute angle errors wrap to (-180°, 180°] (a tracked angle 360° off is exact).
@@ -19,7 +21,7 @@ def evaluate(robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre
 
     ``camera_centre`` (one camera's centre, world frame): also split each body's centre
     error into its part along the ray from the camera through the body's true centre
-    (``depth_error_pct``, the mean of its size) and its part across that ray, which the
+    (``depth_error_pct``, the mean of its length) and its part across that ray, which the
     camera sees directly (``centre_error_across_rays_pct`` and its
     ``first_vs_last_ratio_across_rays``); the two parts are orthogonal, so each is at
     most the centre error.  One view gives a distance only through the apparent size,
