@@ -105,7 +105,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     t0 = time.perf_counter()
     res = [tr.step(m, source=f"frame {k}") for k, m in enumerate(data)]
     wall = time.perf_counter() - t0
-    # one camera: how much of the error is the distance along its viewing ray
+    # one camera: the error split along and across its viewing rays (depth, and what it sees)
     centre = cams[0].centre if len(cams) == 1 else None
     rep = evaluate(robot, Trajectory(robot, np.array([r.q for r in res]), res), Trajectory(robot, motion), centre)
     split = {k: sum(r.timings[k] for r in res) for k in ("e_step", "m_step", "static_update", "sizes")}

@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     truth = Trajectory.from_csv(robot, args.truth)
     first = int(meta.get("first_frame", 0))
     truth = Trajectory(robot, truth.q[first:])
-    # one camera: how much of the error is the distance along its viewing ray
+    # one camera: the error split along and across its viewing rays (depth, and what it sees)
     cameras = Camera.list_from_json(out / "cameras.json") if (out / "cameras.json").is_file() else []
     rep = evaluate(robot, tracked, truth, cameras[0].centre if len(cameras) == 1 else None)
     if args.json:

@@ -1220,8 +1220,7 @@ class Tracker:
         if spawn is not None and spawn[2] and not switched and "limb" not in self._alts:
             qs, fs, limb = spawn
             last = self.q.copy()  # the last frame's pose with the moved limbs as in qs: no velocity
-            for iq, below in self._moved_limbs(limb)[0]:
-                last[iq], last[below] = qs[iq], qs[below]
+            self._copy_limbs(last, qs, limb)
             self._alts["limb"] = [qs, last, (1.0 - a) * last_score + a * fs, fs]
         for kind in list(self._alts):
             qa, _, sc, _ = self._alts[kind]
@@ -1275,21 +1274,22 @@ class Tracker:
         and return the frame's flag (none if ``limb`` is "")."""
         if not limb:
             return ()
-        indices, moved, reset = self._moved_limbs(limb)
-        for iq, below in indices:
-            self.q[iq], self.q[below] = q[iq], q[below]
+        moved, reset = self._copy_limbs(self.q, q, limb)
         if reset:
             return (f"put the joints below '{moved[0]}' back at rest",)
         if len(moved) == 1:
             return (f"swung '{limb}' the other way",)
         return (f"swapped '{moved[0]}' and '{moved[1]}'",)
 
-    def _moved_limbs(self, limb: str) -> tuple[list, list[str], bool]:
-        """The limbs a limb-search label (:meth:`_swing_limbs`) moved: their (first
-        joint's q index, the q indices below it), their joints' names, and whether the
-        joints below were put back at rest."""
+    def _copy_limbs(self, dst: np.ndarray, src: np.ndarray, limb: str) -> tuple[list[str], bool]:
+        """Copy into ``dst`` from ``src`` the angles of the limbs a limb-search label
+        (:meth:`_swing_limbs`) names, every joint of each limb; return their first
+        joints' names and whether the joints below were put back at rest."""
         names = limb.removesuffix(_LIMB_RESET).split(_LIMB_AND)
-        return [self._limbs[n] for n in names], names, limb.endswith(_LIMB_RESET)
+        for name in names:
+            iq, below = self._limbs[name]
+            dst[iq], dst[below] = src[iq], src[below]
+        return names, limb.endswith(_LIMB_RESET)
 
     def _running_fit(self, fit: float) -> None:
         """Fold this frame's fit into the main hypothesis's running fit (exponentially
