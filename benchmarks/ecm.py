@@ -2,12 +2,14 @@
 320x240) tracked from the rest pose; accuracy and speed (one core).
 
     .venv/bin/python benchmarks/ecm.py [--frames 300] [--only lowerbody-2cam,...] [--seeds 0,1,2,3,4]
+        [--option NAME=VALUE] [--restart -60]
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import copy
 import inspect
 import os
 import time
@@ -91,9 +93,15 @@ CASES = {
 _WIDTH = max(map(len, CASES)) + len(" seed 10")  # the name column: every case's rows in line
 
 
-def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
+def run_case(name, frames, noise, mismatch, level=False, seed=0, restart=None, **tracker_kw):
     """Track one case; print its row and return (centre error %, revolute RMSE deg, frames/s,
-    last 30 / first 30)."""
+    last 30 / first 30, the same across one camera's rays, the last 30 frames restarted
+    from the truth / as tracked).
+
+    ``restart`` (a frame; negative: from the end): a copy of the tracker also goes on from
+    the true pose at that frame (:meth:`Tracker.restart`, the measured sizes kept), and the
+    row adds its last 30 frames' error beside the track's.  The same error again means the
+    track's last 30 frames owe it to those frames, not to what went before: no drift."""
     spec, motion_name, ncam, *case_kw = CASES[name]
     tracker_kw = {**(case_kw[0] if case_kw else {}), **tracker_kw}
     robot = load(SPECS / f"{spec}.kms", root="free")
@@ -102,9 +110,17 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     cams = cameras(robot, ncam, level)
     data = [m for _, m in synthesize(robot, motion, cams, noise=noise, size_mismatch=mismatch, rng=rng)]
     tr = Tracker(robot, cams, **tracker_kw)
+    k0 = None if restart is None else (restart if restart >= 0 else frames + restart)
+    res, fresh, copying = [], None, 0.0
     t0 = time.perf_counter()
-    res = [tr.step(m, source=f"frame {k}") for k, m in enumerate(data)]
-    wall = time.perf_counter() - t0
+    for k, m in enumerate(data):
+        if k == k0:  # the copy is not tracking: its time is left out of the frames/s
+            t_copy = time.perf_counter()
+            fresh = copy.deepcopy(tr)
+            fresh.restart(motion[k])
+            copying = time.perf_counter() - t_copy
+        res.append(tr.step(m, source=f"frame {k}"))
+    wall = time.perf_counter() - t0 - copying
     # one camera: the error split along and across its viewing rays (depth, and what it sees)
     centre = cams[0].centre if len(cams) == 1 else None
     rep = evaluate(robot, Trajectory(robot, np.array([r.q for r in res]), res), Trajectory(robot, motion), centre)
@@ -116,6 +132,15 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
     last = range(max(0, frames - 30), frames)
     fit_tracked = np.mean([tr.fit(res[k].q, data[k]) for k in last])
     fit_truth = np.mean([tr.fit(motion[k], data[k]) for k in last])
+    again = ""
+    restarted = np.nan
+    if fresh is not None:
+        q2 = np.array([fresh.step(m, source=f"frame {k}").q for k, m in enumerate(data[k0:], k0)])
+        tail = evaluate(robot, Trajectory(robot, q2), Trajectory(robot, motion[k0:]))["per_frame_centre_error_pct"]
+        last_tracked = np.mean(rep["per_frame_centre_error_pct"][-30:])
+        restarted = np.mean(tail[-30:]) / last_tracked
+        again = (f" | from the truth at frame {k0}: last 30 {np.mean(tail[-30:]):.3f} % against "
+                 f"{last_tracked:.3f} % ({restarted:.2f}x)")
     rig = "level" if level and len(cams) > 1 else "raised"
     tag = f" seed {seed}" if seed else ""
     print(
@@ -126,11 +151,12 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, **tracker_kw):
         f"S {split['static_update'] / wall:.0%} sizes {split['sizes'] / wall:.0%} | last 30 fit {fit_tracked:.3f}, "
         f"true poses' {fit_truth:.3f}"
         + (f" | along the rays {rep['depth_error_pct']:.2f} %, across {rep['centre_error_across_rays_pct']:.2f} % "
-           f"(last/first {rep['first_vs_last_ratio_across_rays']:.2f})" if centre is not None else ""),
+           f"(last/first {rep['first_vs_last_ratio_across_rays']:.2f})" if centre is not None else "")
+        + again,
         flush=True,
     )
     return (rep["mean_centre_error_pct"], rep["revolute_rmse_deg"], frames / wall, rep["first_vs_last_ratio"],
-            rep.get("first_vs_last_ratio_across_rays", np.nan))
+            rep.get("first_vs_last_ratio_across_rays", np.nan), restarted)
 
 
 def main():
@@ -143,6 +169,11 @@ def main():
     p.add_argument(
         "--option", action="append", default=[], metavar="NAME=VALUE",
         help="a Tracker option for every case, e.g. mirror_hypothesis=False (repeatable)",
+    )
+    p.add_argument(
+        "--restart", type=int, metavar="FRAME",
+        help="also track from the true pose at FRAME (negative: from the end, e.g. -60) and print the last 30 "
+        "frames' error of that track beside the track's: the same error means no drift",
     )
     p.add_argument(
         "--seeds", default="0",
@@ -166,17 +197,23 @@ def main():
         if bad:
             p.error(f"--only: no case {', '.join(bad)}; the cases are {', '.join(CASES)}")
     seeds = [int(x) for x in a.seeds.split(",")]
+    if a.restart is not None and not 0 < (a.restart if a.restart >= 0 else a.frames + a.restart) <= a.frames - 30:
+        p.error(f"--restart: frame {a.restart} leaves fewer than the last 30 of the {a.frames} frames after it")
     for name in a.only.split(",") if a.only else CASES:
-        rows = [run_case(name, a.frames, a.noise, a.size_mismatch, a.level, seed, **options) for seed in seeds]
+        rows = [
+            run_case(name, a.frames, a.noise, a.size_mismatch, a.level, seed, a.restart, **options) for seed in seeds
+        ]
         if len(rows) > 1:
-            err, rmse, fps, drift, drift_across = np.array(rows).T
+            err, rmse, fps, drift, drift_across, restarted = np.array(rows).T
             print(
                 f"{name:{_WIDTH}s} median of {len(rows)} seeds | centre err {np.median(err):.3f} % (max {err.max():.3f}) | "
                 f"rev RMSE {np.median(rmse):.2f} deg (max {rmse.max():.2f}) | last/first at most 1.5 on "
                 f"{int(np.sum(drift <= 1.5))} of {len(rows)} (max {drift.max():.2f}"
                 + (f"; across the rays on {int(np.sum(drift_across <= 1.5))})"
                    if np.isfinite(drift_across).all() else ")")
-                + f" | {np.median(fps):.1f} fr/s",
+                + f" | {np.median(fps):.1f} fr/s"
+                + (f" | last 30 from the truth at the restart {np.median(restarted):.2f}x the track's "
+                   f"({np.min(restarted):.2f}-{np.max(restarted):.2f})" if a.restart is not None else ""),
                 flush=True,
             )
 
