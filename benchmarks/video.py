@@ -6,7 +6,7 @@
    memory first; the timed part is :class:`kms2pin.video.segmentation.Segmenter`
    (background model + luminance edge refinement + clean-up), per frame, with
    one OpenCV thread and with OpenCV's default thread count, and once more
-   without the edge refinement.  The learning (median + training) is timed
+   without the edge refinement.  The learning (temporal mode + training) is timed
    separately.  Target: >= 100 frames/s on one core.
 2. **End to end: `kms2pin track --video` on the full-body model.**  Two
    synchronized 320x240 MJPG videos (15 frames/s) of the full-body model

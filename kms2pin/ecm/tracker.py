@@ -142,7 +142,9 @@ _LIMB_RESET = " reset"  # follows the joint of a limb whose joints below it were
 #: errors are partly systematic (the gaps between the arms and the trunk filled in), and
 #: the size refinement would take them up; its fit is noisy, and the limb search on a
 #: drop of 0.015 fired on many frames, where 0.03 tracked ten segmented clips as well at
-#: 1.5-2.5x the frames/s
+#: 1.5-2.5x the frames/s (measured on masks with the background model's ghost; on the
+#: same clips' masks without it, the defaults give 0.22-0.35 % of the height against
+#: 0.26-0.39 % at 0.8x the frames/s: docs/tracking.md, video)
 SEGMENTED_MASKS = {"size_every": 0, "limb_search_drop": 0.03}
 
 
@@ -226,7 +228,9 @@ class Tracker:
             body-centre error of 0.97 % against 1.29 % over ten seeds (docs/tracking.md).  It
             assumes the masks' errors are noise: on segmented video, whose errors are
             partly systematic (gaps between the arms and the trunk filled in), it made
-            the full body worse on two clips of three, so ``track --video`` turns it off.
+            the full body worse on two clips of three, so ``track --video`` turns it off
+            (measured before the segmentation's temporal mode took out the false blob
+            beside the subject: docs/tracking.md, video).
         size_iterations: E-step / size-fit rounds of the calibration.
         mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
             when there is one camera, the root is free and the model has left/right
