@@ -266,27 +266,34 @@ def temporal_mode(frames: Sequence[np.ndarray], tolerance: float) -> np.ndarray:
 
     Unlike the median it finds the background where the background shows in fewer
     than half of the frames, as long as no one colour of the subject shows there in
-    more (module docstring).  Cost: a comparison per pair of frames."""
+    more (module docstring).  Cost: a comparison per pair of frames, by bands of rows
+    (about 16 MB of counts at a time, whatever the image size)."""
     n = len(frames)
-    counts = np.zeros((n,) + frames[0].shape[:2], np.int32)
+    h, w = frames[0].shape[:2]
     lo, hi = (0, 0, 0), (float(tolerance),) * 3
 
     def near(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return cv2.inRange(cv2.absdiff(a, b), lo, hi) > 0  # every channel within the tolerance
 
-    for i in range(n):
-        for j in range(i + 1, n):
-            both = near(frames[i], frames[j])
-            counts[i] += both
-            counts[j] += both
-    centre = np.take_along_axis(np.stack(frames), counts.argmax(axis=0)[None, :, :, None], axis=0)[0]
-    total = np.zeros(centre.shape, np.float64)
-    members = np.zeros(centre.shape[:2], np.int32)
-    for f in frames:
-        m = near(f, centre)
-        total[m] += f[m]
-        members += m
-    return np.rint(total / members[:, :, None]).astype(np.uint8)  # the centre frame is a member
+    out = np.empty(frames[0].shape, np.uint8)
+    rows = max(1, (1 << 22) // max(1, n * w))
+    for r0 in range(0, h, rows):
+        band = [np.ascontiguousarray(f[r0 : r0 + rows]) for f in frames]
+        counts = np.zeros((n,) + band[0].shape[:2], np.int32)
+        for i in range(n):
+            for j in range(i + 1, n):
+                both = near(band[i], band[j])
+                counts[i] += both
+                counts[j] += both
+        centre = np.take_along_axis(np.stack(band), counts.argmax(axis=0)[None, :, :, None], axis=0)[0]
+        total = np.zeros(centre.shape, np.float64)
+        members = np.zeros(centre.shape[:2], np.int32)
+        for f in band:
+            m = near(f, centre)
+            total[m] += f[m]
+            members += m
+        out[r0 : r0 + rows] = np.rint(total / members[:, :, None])  # the centre frame is a member
+    return out
 
 
 def bootstrap_frames(frames: list[np.ndarray], diff: float, tolerance: float = 20.0) -> list[np.ndarray]:
