@@ -14,9 +14,9 @@ Pipeline, per frame:
 1. **Learning** from ``learn_frames`` frames (default 30), either spread
    evenly over the whole sequence (``learn_from="spread"``, the default: the
    input is read twice) or the first ones (``"start"``: one pass, for streams).
-   Their per-pixel temporal mode (:func:`temporal_mode`: the value the most
-   learning frames agree with, within ``mode_tolerance`` grey levels in every
-   colour channel) is a first guess of the empty scene, and pixels that differ
+   Their per-pixel temporal mode (:func:`temporal_mode`: the mean of the largest
+   group of learning frames that agree within ``mode_tolerance`` grey levels in
+   every colour channel) is a first guess of the empty scene, and pixels that differ
    from it by more than ``bootstrap_diff`` grey levels (the moving subject,
    dilated by 3 pixels) are replaced by it.  These cleaned frames train the
    model with a high learning rate (``1/(k+1)`` for the k-th, i.e. a running
