@@ -14,7 +14,7 @@ from kms2pin.ecm.camera import Camera
 from kms2pin.errors import InputDataError
 from kms2pin.robot import load
 from kms2pin.video import TruncatedVideoWarning, open_frames, read_frames, segment_frames
-from kms2pin.video.segmentation import refine_edges, remove_small_blobs, temporal_mode
+from kms2pin.video.segmentation import bootstrap_frames, refine_edges, remove_small_blobs, temporal_mode
 from kms2pin.video.synthetic import diagonal_walk, walking_video, write_video
 
 from ._scene import LOWER, iou, pale_walk, read_masks
@@ -278,23 +278,29 @@ def test_empty_scene_gives_empty_masks():
         assert max(m.mean() for m in masks) < 0.002
 
 
+def _banded_scene(frames: int, rng):
+    """A light static scene whose middle band is covered in 60 % of the frames by a darker
+    subject of five colours in turn (flicker and sensor noise on every frame)."""
+    background = rng.integers(170, 216, (40, 60, 3)).astype(np.float64)
+    colours = np.array([[30, 30, 110], [110, 30, 30], [30, 110, 30], [100, 100, 20], [20, 90, 100]], float)
+    band = np.zeros((40, 60), bool)
+    band[:, 20:40] = True
+    covered = rng.permutation(np.arange(frames) < round(0.6 * frames))
+    out = []
+    for k in range(frames):
+        img = background * rng.uniform(0.95, 1.05)  # flicker
+        if covered[k]:
+            img[band] = colours[k % 5]
+        out.append(np.clip(np.rint(img + rng.normal(0, 3, img.shape)), 0, 255).astype(np.uint8))
+    return background, band, covered, out
+
+
 def test_temporal_mode_finds_a_background_shown_in_under_half_the_frames():
     """A band of a light scene is covered in 60 % of the frames by a darker subject
     whose colour there changes from frame to frame (five colours, 12 % of the frames
     each): the median of the frames is a subject's colour there, the mode is the
     background."""
-    rng = np.random.default_rng(3)
-    background = rng.integers(170, 216, (40, 60, 3)).astype(np.float64)
-    colours = np.array([[30, 30, 110], [110, 30, 30], [30, 110, 30], [100, 100, 20], [20, 90, 100]], float)
-    band = np.zeros((40, 60), bool)
-    band[:, 20:40] = True
-    covered = rng.permutation(np.arange(30) < 18)  # 18 of 30 frames
-    frames = []
-    for k in range(30):
-        img = background * rng.uniform(0.95, 1.05)  # flicker
-        if covered[k]:
-            img[band] = colours[k % 5]
-        frames.append(np.clip(np.rint(img + rng.normal(0, 3, img.shape)), 0, 255).astype(np.uint8))
+    background, band, _, frames = _banded_scene(30, np.random.default_rng(3))
     mode = temporal_mode(frames, 20.0).astype(float)
     median = np.median(np.stack(frames), axis=0)
     assert np.abs(mode - background).max() <= 8  # the background, noise and flicker averaged
@@ -316,3 +322,13 @@ def test_slow_walker_leaves_no_ghost():
     print(f"false pixels: median {np.median(false):.3f}, max {false.max():.3f}; missed: median {np.median(missed):.3f}")
     assert np.median(false) < 0.04 and false.max() < 0.08
     assert np.median(missed) < 0.03
+
+
+def test_bootstrap_frames_take_the_subject_out_of_many_learning_frames():
+    """With more learning frames than the mode compares (130: every third of them), every
+    learning frame still has the subject replaced by the background."""
+    background, band, covered, frames = _banded_scene(130, np.random.default_rng(4))
+    clean = bootstrap_frames(frames, 30.0)
+    assert len(clean) == 130
+    worst = max(np.abs(c.astype(float) - background)[band].max() for c, k in zip(clean, covered) if k)
+    assert worst <= 25  # the mode, flicker and noise; a subject's colour would be 60 or more off
