@@ -36,11 +36,15 @@ _MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
 
 
 def add_shadow_argument(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--no-shadows``, shared with ``kms2pin track --video`` (``prefix`` starts its help)."""
+    """``--no-shadows`` and ``--shadow-threshold``, shared with ``kms2pin track --video`` (``prefix`` starts its help)."""
     p.add_argument("--no-shadows", action="store_true",
                    help=f"{prefix}no shadow detection: pixels that are a darker copy of the background stay foreground "
                         "(default: they are shadows, i.e. background; turn it off when the subject's colours are "
                         "darker shades of the background's, e.g. light grey clothes before a white wall)")
+    p.add_argument("--shadow-threshold", type=float, default=0.5, metavar="T",
+                   help=f"{prefix}a shadow keeps at least this fraction of the background's brightness (default "
+                        "0.5, OpenCV's; 0.3 also takes deeper cast shadows for background, and with them subjects "
+                        "in dark shades of the background's colours)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -75,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     params = SegmentParams(
         method=args.method, learn_frames=args.learn_frames, learn_from=args.learn_from, history=args.history,
         threshold=args.threshold, min_blob_area=args.min_blob_area, fill_holes=not args.keep_holes,
-        detect_shadows=not args.no_shadows, refine_edges=not args.no_edge_refinement,
+        detect_shadows=not args.no_shadows, shadow_threshold=args.shadow_threshold,
+        refine_edges=not args.no_edge_refinement,
     )
     params.check()
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1

@@ -286,7 +286,8 @@ def run(args: argparse.Namespace) -> int:
         from ..video.track_video import segment_videos
 
         per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method,
-                                              detect_shadows=not args.no_shadows)
+                                              detect_shadows=not args.no_shadows,
+                                              shadow_threshold=args.shadow_threshold)
         for note in notes:
             print(f"note: {note}", file=sys.stderr)
         numbers = list(range(len(per_cam_masks[0])))
@@ -367,6 +368,7 @@ def run(args: argparse.Namespace) -> int:
             meta["videos"] = [str(v) for v in args.video]
             meta["segmentation"] = args.method
             meta["shadow_detection"] = not args.no_shadows
+            meta["shadow_threshold"] = args.shadow_threshold
         (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         Camera.list_to_json(cameras, out / "cameras.json")
     except OSError as err:

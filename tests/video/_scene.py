@@ -130,3 +130,24 @@ def pale_walk(robot, camera, frames: int = 60, stride: int = 4, seed: int = 3):
     renders = label_renders(robot, q, camera)
     images, masks = render_video(robot, q, camera, seed=seed, background=wall, palette=palette, renders=renders)
     return images, masks, [np.isin(lab, light) for lab, _ in renders], q
+
+
+def cast_shadow(frames, masks, darkness: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The frames with the subject's shadow on the floor, and the shadows' masks: its
+    silhouette (``masks``) squashed to a third of its height below its lowest pixel
+    and sheared, the background there darkened to ``darkness`` of its brightness
+    (colour kept)."""
+    out, shadows = [], []
+    for frame, m in zip(frames, masks):
+        img = frame.astype(np.float32)
+        rows = np.flatnonzero(m.any(axis=1))
+        if rows.size:
+            foot = float(rows[-1])
+            warp = np.float32([[1, 0.8, -0.8 * foot], [0, 1 / 3, foot * 2 / 3]])
+            shadow = (cv2.warpAffine(m.astype(np.uint8), warp, (m.shape[1], m.shape[0])) > 0) & ~m
+            img[shadow] *= darkness
+        else:
+            shadow = np.zeros_like(m)
+        out.append(np.clip(img, 0, 255).astype(np.uint8))
+        shadows.append(shadow)
+    return out, shadows

@@ -17,7 +17,7 @@ from kms2pin.video import TruncatedVideoWarning, open_frames, read_frames, segme
 from kms2pin.video.segmentation import bootstrap_frames, refine_edges, remove_small_blobs, temporal_mode
 from kms2pin.video.synthetic import diagonal_walk, walking_video, write_video
 
-from ._scene import LOWER, iou, pale_walk, read_masks
+from ._scene import LOWER, cast_shadow, iou, pale_walk, read_masks
 
 N = 60
 
@@ -332,3 +332,33 @@ def test_bootstrap_frames_take_the_subject_out_of_many_learning_frames():
     assert len(clean) == 130
     worst = max(np.abs(c.astype(float) - background)[band].max() for c, k in zip(clean, covered) if k)
     assert worst <= 25  # the mode, flicker and noise; a subject's colour would be 60 or more off
+
+
+def test_shadow_threshold_takes_a_deep_cast_shadow_for_background(video, tmp_path, capsys):
+    """A shadow at 0.4 of the floor's brightness is darker than OpenCV's default shadow
+    test allows (0.5) and stays in the masks; ``--shadow-threshold 0.3`` takes it out
+    and leaves the subject whole."""
+    frames, shadows = cast_shadow(video.frames, video.masks, 0.4)
+    d = tmp_path / "frames"
+    d.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(d / f"img{i:03d}.png"), f)
+    false, missed, kept = {}, {}, {}
+    shadow_area = sum(int(m.sum()) for m in shadows)
+    for t in (None, 0.3):
+        out = tmp_path / f"m{t}"
+        extra = [] if t is None else ["--shadow-threshold", str(t)]
+        assert main(["segment", str(d), "-o", str(out), "--no-progress", *extra]) == 0
+        masks = read_masks(out, N)
+        area = sum(int(m.sum()) for m in video.masks)
+        false[t] = sum(int((m & ~v).sum()) for m, v in zip(masks, video.masks)) / area
+        missed[t] = sum(int((v & ~m).sum()) for m, v in zip(masks, video.masks)) / area
+        kept[t] = sum(int((m & s).sum()) for m, s in zip(masks, shadows)) / shadow_area
+    with capsys.disabled():
+        print(f"false pixels / true area: default {false[None]:.3f}, 0.3 {false[0.3]:.3f}; missed {missed[0.3]:.3f}; "
+              f"shadow kept: default {kept[None]:.3f}, 0.3 {kept[0.3]:.3f}")
+    assert kept[None] > 0.5 and false[None] > 0.1
+    assert kept[0.3] < 0.02 and false[0.3] < 0.03 and missed[0.3] < 0.03
+    for bad in ("0", "1.2"):
+        assert main(["segment", str(d), "-o", str(tmp_path / "x"), "--no-progress", "--shadow-threshold", bad]) == 1
+        assert "shadow_threshold must be between 0 and 1" in capsys.readouterr().err

@@ -18,9 +18,9 @@ from kms2pin.ecm.tracker import Trajectory
 from kms2pin.errors import InputDataError
 from kms2pin.robot import load
 from kms2pin.video.init import initial_pose_details, read_pose_json
-from kms2pin.video.synthetic import diagonal_walk, write_video
+from kms2pin.video.synthetic import diagonal_walk, walking_video, write_video
 
-from ._scene import LOWER, pale_walk, read_masks, render_video
+from ._scene import LOWER, cast_shadow, pale_walk, read_masks, render_video
 
 N = 40
 
@@ -205,6 +205,33 @@ def test_no_shadows_reaches_the_segmentation(tmp_path, capsys):
     assert meta["limb_search"] and meta["limb_search_drop"] == 0.03  # segmented masks: a noisy fit
     masks = read_masks(out / "masks" / "cam0", len(frames))
     assert min((m & t).sum() / t.sum() for m, t in zip(masks, light)) >= 0.98
+
+
+def test_shadow_threshold_reaches_the_segmentation(tmp_path, capsys):
+    """`track --video --shadow-threshold 0.3`: a cast shadow at 0.4 of the floor's
+    brightness is not in the masks it saves; a threshold outside (0, 1) is refused
+    before anything is written."""
+    robot = load(str(LOWER), root="free")
+    cam = Camera.default()
+    v = walking_video(robot, cam, frames=16, seed=2)
+    video = tmp_path / "frames"
+    video.mkdir()
+    frames, shadows = cast_shadow(v.frames, v.masks, 0.4)
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(video / f"f{i:02d}.png"), f)
+    cam.to_json(tmp_path / "cam.json")
+    args = ["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-progress",
+            "--no-video"]
+    bad = tmp_path / "bad"
+    assert main([*args, "--shadow-threshold", "1", "-o", str(bad)]) == 1
+    assert "shadow_threshold must be between 0 and 1" in capsys.readouterr().err
+    assert not (bad / "trajectory.csv").exists()
+    out = tmp_path / "o"
+    assert main([*args, "--shadow-threshold", "0.3", "-o", str(out)]) == 0, capsys.readouterr().err
+    assert json.loads((out / "meta.json").read_text())["shadow_threshold"] == 0.3
+    masks = read_masks(out / "masks" / "cam0", len(v.frames))
+    # the shadow is not in the masks (16 frames are too few for the rest of the masks to be good)
+    assert sum(int((m & s).sum()) for m, s in zip(masks, shadows)) < 0.02 * sum(int(s.sum()) for s in shadows)
 
 
 def test_video_needs_cameras_and_exclusive_with_masks(scene, tmp_path, capsys):
