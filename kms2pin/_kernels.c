@@ -660,6 +660,19 @@ static int contiguous_n3(const Buf *b)
     return b->view.ndim == 2 && b->view.strides[1] == 8 && b->view.strides[0] == 24;
 }
 
+/* One pixel of a sharp silhouette s = sigma(h) against the mask y, o of it explained by
+ * the other bodies (kms2pin.ecm.mstep._view_terms): returns the residual
+ * r = y - o - (1 - o) s, sets *s and *w = (1 - o) s (1 - s) inv, the weight of dh in dr,
+ * which is 0 on a saturated edge (|h| >= H_CUT: no gradient).  s and 1 - s come from
+ * one exp, without overflow. */
+static inline double edge_term(double h, double inv, double y, double o, double *s, double *w)
+{
+    double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
+    *s = h >= 0 ? s1 : s0;
+    *w = fabs(h) < H_CUT ? (1.0 - o) * s0 * s1 * inv : 0.0;
+    return y - o - (1.0 - o) * *s;
+}
+
 /* The per-pixel sums of one view (kms2pin.ecm.mstep._evaluate), added to cost,
  * evidence, g6 (6) and Hu (the 21 entries of the upper triangle of H, row by row). */
 static void view_accumulate(const View *v, const double *A, const double *t, int jac, double *cost_io,
@@ -684,19 +697,12 @@ static void view_accumulate(const View *v, const double *A, const double *t, int
     for (Py_ssize_t i = 0; i < N; i++) {
         double d[3] = {AT(v->dirs, i, 0), AT(v->dirs, i, 1), AT(v->dirs, i, 2)}, qs[3], g[3];
         double a2 = closest_a2(A, e, Ae, d, qs, g);
-        double h = (1.0 - a2) * inv;
-        /* s = sigma(h) and 1 - s = sigma(-h) from one exp, without overflow */
-        double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
-        double s = h >= 0 ? s1 : s0;
         double y = V(v->y, i), o = V(v->o, i), wt = v->has_w ? V(v->w, i) : 1.0;
-        double fr = 1.0 - o;
-        double r = y - o - fr * s;
+        double s, w, r = edge_term((1.0 - a2) * inv, inv, y, o, &s, &w);
         cost += wt * r * r;
         if (!jac) continue;
-        evidence += wt * fr * s * y;
-        if (!(fabs(h) < H_CUT)) continue; /* saturated edge: no gradient */
-        double w = fr * s0 * s1 * inv;
-        if (!(w > 0.0)) continue;
+        evidence += wt * (1.0 - o) * s * y;
+        if (!(w > 0.0)) continue; /* off the edge, or saturated: no gradient */
         double J[6], qxg[3];
         cross(qs, g, qxg);
         for (int c = 0; c < 3; c++) {
@@ -809,15 +815,10 @@ static PyObject *scale_fit(PyObject *self, PyObject *const *args, Py_ssize_t nar
         double x[3];
         for (int k = 0; k < 3; k++) x[k] = (cl.q0 * R[k] + cl.q1 * R[3 + k] + cl.q2 * R[6 + k]) / L[k];
         double a2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
-        double h = (1.0 - a2) * inv;
-        double z = exp(-fabs(h)), s1 = 1.0 / (1.0 + z), s0 = z * s1;
-        double s = h >= 0 ? s1 : s0;
         double y = V(b[1], i), o = V(b[2], i), wt = has_w ? V(b[3], i) : 1.0;
-        double fr = 1.0 - o, r = y - o - fr * s;
+        double s, w, r = edge_term((1.0 - a2) * inv, inv, y, o, &s, &w);
         cost += wt * r * r;
-        if (!(fabs(h) < H_CUT)) continue; /* saturated edge: no gradient */
-        double w = fr * s0 * s1 * inv;
-        if (!(w > 0.0)) continue;
+        if (!(w > 0.0)) continue; /* off the edge, or saturated: no gradient */
         double J[3] = {-2.0 * x[0] * x[0] * w, -2.0 * x[1] * x[1] * w, -2.0 * x[2] * x[2] * w};
         int m = 0;
         for (int a = 0; a < 3; a++) {
