@@ -22,7 +22,8 @@
    K clips of that scene (60 frames, the videos' noise seeds 10k and 10k + 1),
    tracked with ``--init`` at the true first pose, so the body sizes are measured
    on the first frame; each with ``--size-every 5`` and ``0``.  The accuracy of
-   both is printed: the reason ``track --video`` keeps the first frame's sizes.
+   both is printed (``track --video`` refines them, since the segmentation's
+   temporal mode; before it, with a false blob beside the subject, it did not).
 """
 
 from __future__ import annotations

@@ -69,9 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "pose is taken to be the rest pose or --init POSE, and refine them as the "
                         "subject turns; not with --init auto)")
     p.add_argument("--size-every", type=_count, default=None, metavar="N",
-                   help="refine the measured body sizes on every N-th frame (0: keep the first frame's; "
-                        "default 5 with --masks, 0 with --video, whose segmentation errors, such as the "
-                        "gaps between the arms and the trunk filled in, the sizes would take up)")
+                   help="refine the measured body sizes on every N-th frame (default 5; 0: keep the first "
+                        "frame's, e.g. when the masks have systematic errors, such as deep shadows, that the "
+                        "sizes would take up)")
     p.add_argument("--no-mirror-hypothesis", action="store_true",
                    help="with one camera, do not also track the mirror image of the pose (it tells "
                         "which way a turn goes; one more ECM a frame)")

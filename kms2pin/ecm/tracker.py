@@ -139,13 +139,14 @@ _CROSS_FRAMES = 4
 _LIMB_AND = " and "  # joins the two joints of a twin limbs' exchange
 _LIMB_RESET = " reset"  # follows the joint of a limb whose joints below it were put back at rest
 #: Tracker options for masks from a real segmentation (``track --video`` uses them): its
-#: errors are partly systematic (the gaps between the arms and the trunk filled in), and
-#: the size refinement would take them up; its fit is noisy, and the limb search on a
-#: drop of 0.015 fired on many frames, where 0.03 tracked ten segmented clips as well at
-#: 1.5-2.5x the frames/s (measured on masks with the background model's ghost; on the
-#: same clips' masks without it, the defaults give 0.22-0.35 % of the height against
-#: 0.26-0.39 % at 0.8x the frames/s: docs/tracking.md, video)
-SEGMENTED_MASKS = {"size_every": 0, "limb_search_drop": 0.03}
+#: fit is noisy, and the limb search on a drop of 0.015 fired on many frames, where 0.03
+#: tracked ten segmented clips as well at 1.5-2.5x the frames/s.  Until the segmentation
+#: learnt the background from the temporal mode it also kept the first frame's sizes
+#: (``size_every=0``): the false blob the median left beside the subject was a systematic
+#: error the size refinement took up.  Without it the refinement helps two cameras on all
+#: ten clips (0.22-0.35 % of the height against 0.26-0.39 %; with a cast shadow 0.31-0.34
+#: against 0.38-0.44 % on four): docs/tracking.md, video
+SEGMENTED_MASKS = {"limb_search_drop": 0.03}
 
 
 class Tracker:
@@ -226,11 +227,11 @@ class Tracker:
             first frame is measured once the subject turns it into view.  With a 10 %
             size mismatch it gave the one-camera full body with both priors a median
             body-centre error of 0.97 % against 1.29 % over ten seeds (docs/tracking.md).  It
-            assumes the masks' errors are noise: on segmented video, whose errors are
-            partly systematic (gaps between the arms and the trunk filled in), it made
-            the full body worse on two clips of three, so ``track --video`` turns it off
-            (measured before the segmentation's temporal mode took out the false blob
-            beside the subject: docs/tracking.md, video).
+            assumes the masks' errors are noise: on segmented video with a systematic
+            error (before the segmentation's temporal mode, a false blob beside the
+            subject in every frame) it made the full body worse on two clips of three.
+            Without that blob it helps two cameras on every clip, a cast shadow or not
+            (docs/tracking.md, video); ``--size-every 0`` keeps the first frame's sizes.
         size_iterations: E-step / size-fit rounds of the calibration.
         mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
             when there is one camera, the root is free and the model has left/right
