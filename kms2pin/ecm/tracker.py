@@ -348,6 +348,12 @@ class Tracker:
             worse), the two-camera full body's seed 2 0.20 % against 0.36 %, the other
             benchmark rows with several cameras the same to the digit, at 0.96-0.98x the
             frames/s.
+            The search on a falling fit waits until the running fit has settled, about
+            1 / ``hypothesis_smoothing`` frames (5): before that the running fit is
+            mostly the first frame's, which the size calibration or the initialization
+            fitted to that very frame.  On one-camera segmented video with automatic
+            initialization it fired on frame 3 of every clip, and its swing took the
+            error to 5-8 % for a few frames (docs/tracking.md, video).
         limb_hypothesis, limb_hypothesis_drop, limb_margin: on a frame whose fit falls
             more than ``limb_hypothesis_drop`` below the running fit but not by
             ``limb_search_drop``, the limb search's candidates are screened, and the
@@ -1041,7 +1047,11 @@ class Tracker:
             q, it, converged = self._ecm(q, masks, timings, coarse=coarse)
             fit = self._iou(q, masks)
             moved, spawn = (), None
-            if self.limb_search and self.frame > 0 and fit < self._score - self.limb_search_drop:
+            # the running fit averages about 1 / hypothesis_smoothing frames: before that it is
+            # mostly the first frame's, which the size calibration (or the initialization) fitted
+            # to that very frame, and a fall below it says nothing of a limb
+            settled = self.frame >= round(1.0 / max(self.hypothesis_smoothing, 1e-9))
+            if self.limb_search and settled and fit < self._score - self.limb_search_drop:
                 q, fit, limb = self._swing_limbs(q, fit, masks, timings)
                 moved = self._limbs_moved(q, limb)
             elif self.limb_hypothesis and self.frame > 0 and "limb" not in self._alts \

@@ -879,15 +879,16 @@ def test_limb_search_unfolds_a_finger_folded_the_wrong_way(seed, frame, off_deg)
 
 def _folded_finger_frame(cams, finger, off_deg, search, **options):
     """The hand's random motion (seed 0) tracked from the truth on clean silhouettes for
-    frames 38 and 39, then frame 40 started with ``finger``'s middle and tip joints
+    frames 34-39 (the search on a falling fit waits until the running fit has settled,
+    five frames), then frame 40 started with ``finger``'s middle and tip joints
     ``off_deg`` off; returns the tracker (``options`` passed on), frame 40's result, the
     true configuration and the tip's q index."""
     robot = _robot("jplhand")
     motion = make_motion(robot, "random", 300, np.random.default_rng(0))
     m = robot.model
     mid, tip = (m.joints[m.getJointId(n)].idx_q for n in (f"midFinger{finger}_lowerJoint", f"tip{finger}_joint"))
-    tr = Tracker(robot, cams, q0=motion[38], prediction="previous", calibrate_sizes=False, limb_search=search, **options)
-    for f in (38, 39):
+    tr = Tracker(robot, cams, q0=motion[34], prediction="previous", calibrate_sizes=False, limb_search=search, **options)
+    for f in range(34, 40):
         assert not tr.step(render(robot, motion[f], cams)).flags
     tr.q[mid] += np.radians(off_deg[0])
     tr.q[tip] += np.radians(off_deg[1])
@@ -1027,9 +1028,10 @@ def test_twins_exchanged_back_in_the_same_frame_are_not_flagged(monkeypatch):
     legs = ("leftThigh_hip", "rightThigh_hip")
     flags = {}
     for second in (arms, legs):
-        tr = Tracker(robot, cams, q0=walk[10], prediction="previous", calibrate_sizes=False,
+        tr = Tracker(robot, cams, q0=walk[6], prediction="previous", calibrate_sizes=False,
                      mirror_hypothesis=False, swap_hypothesis=False, limb_search_drop=-1.0)
-        tr.step(render(robot, walk[10], cams))
+        for f in range(6, 11):  # the search on a falling fit waits for the running fit to settle
+            tr.step(render(robot, walk[f], cams))
         monkeypatch.setattr(tr, "_swing_limbs", lambda q, fit, *a: (q, fit, " and ".join(arms)))
         monkeypatch.setattr(tr, "_exchange_crossed_limbs", lambda q, fit, *a, p=second: (q, fit, " and ".join(p)))
         flags[second] = tr.step(render(robot, walk[11], cams)).flags
@@ -1050,9 +1052,9 @@ def test_a_frame_that_falls_behind_the_running_fit_gets_the_limb_search():
     iq = robot.model.joints[robot.model.getJointId("leftUpperArm_shoulder")].idx_q
     flags = {}
     for search in (False, True):
-        tr = Tracker(robot, cams, q0=walk[244], prediction="previous", calibrate_sizes=False,
+        tr = Tracker(robot, cams, q0=walk[240], prediction="previous", calibrate_sizes=False,
                      mirror_hypothesis=False, swap_hypothesis=False, limb_search=search)
-        for f in (244, 245):
+        for f in range(240, 246):  # the search on a falling fit waits for the running fit to settle
             assert not any("swung" in x for x in tr.step(render(robot, walk[f], cams)).flags)
         tr.q[iq] = 2.0 * robot.q_rest[iq] - walk[246][iq]  # a bad start for frame 246
         r = tr.step(render(robot, walk[246], cams))
@@ -1216,3 +1218,20 @@ def test_fit_is_the_iou_of_the_model_silhouettes_and_what_a_step_reports():
     assert res.fit == pytest.approx(tr.fit(res.q, masks), abs=1e-12)
     with pytest.raises(ValueError, match="nq"):
         tr.fit(robot.q_rest[:5], masks)
+
+
+def test_the_search_on_a_falling_fit_waits_for_the_running_fit_to_settle(monkeypatch):
+    """The running fit averages about 1 / hypothesis_smoothing frames (5); before that it
+    is mostly the first frame's, which the calibration or the initialization fitted to
+    that very frame.  With a search asked for on every frame (a drop of -1), the first
+    five frames get none, the next ones do."""
+    robot = load(DIR / "anatomical" / "fullbody.kms", root="free")
+    walk = make_motion(robot, "walk", 300)
+    cams = [Camera.default()]
+    tr = Tracker(robot, cams, q0=walk[0], calibrate_sizes=False, mirror_hypothesis=False, swap_hypothesis=False,
+                 limb_hypothesis=False, limb_search_drop=-1.0)
+    frames = []
+    monkeypatch.setattr(tr, "_swing_limbs", lambda q, fit, *a: frames.append(tr.frame) or (q, fit, ""))
+    for f in range(8):
+        tr.step(render(robot, walk[f], cams))
+    assert frames == [5, 6, 7]
