@@ -1047,11 +1047,7 @@ class Tracker:
             q, it, converged = self._ecm(q, masks, timings, coarse=coarse)
             fit = self._iou(q, masks)
             moved, spawn = (), None
-            # the running fit averages about 1 / hypothesis_smoothing frames: before that it is
-            # mostly the first frame's, which the size calibration (or the initialization) fitted
-            # to that very frame, and a fall below it says nothing of a limb
-            settled = self.frame >= round(1.0 / max(self.hypothesis_smoothing, 1e-9))
-            if self.limb_search and settled and fit < self._score - self.limb_search_drop:
+            if self.limb_search and self._settled() and fit < self._score - self.limb_search_drop:
                 q, fit, limb = self._swing_limbs(q, fit, masks, timings)
                 moved = self._limbs_moved(q, limb)
             elif self.limb_hypothesis and self.frame > 0 and "limb" not in self._alts \
@@ -1218,7 +1214,7 @@ class Tracker:
             fa = self._iou(qa_new, masks)
             sc = (1.0 - a) * sc + a * fa
             self._alts[kind] = [qa_new, qa, sc, fa]
-            if sc > self._score + margin and (best is None or sc > self._alts[best][2]):
+            if sc > self._score + margin and (best is None or sc > self._alts[best][2]) and self._settled():
                 best = kind
         if best is not None:
             qa_new, qa, sc, fa = self._alts[best]
@@ -1305,6 +1301,13 @@ class Tracker:
             iq, below = self._limbs[name]
             dst[iq], dst[below] = src[iq], src[below]
         return names, limb.endswith(_LIMB_RESET)
+
+    def _settled(self) -> bool:
+        """Whether the running fit has settled: it averages about 1 / hypothesis_smoothing
+        frames, and before that it is mostly the first frame's, which the size calibration
+        (or the initialization) fitted to that very frame.  Until then a fall below it says
+        nothing of a limb, and an alternative hypothesis's lead nothing of the pose."""
+        return self.frame >= round(1.0 / max(self.hypothesis_smoothing, 1e-9))
 
     def _running_fit(self, fit: float) -> None:
         """Fold this frame's fit into the main hypothesis's running fit (exponentially
