@@ -6,7 +6,9 @@ VIDEO is a video file (anything OpenCV/FFmpeg reads) or a folder of images
 (natural name order, all of one size).  The background model is trained on
 --learn-frames frames spread over the whole video (read twice; default) or on
 the first ones (--learn-from start); either way every frame, the learning frames
-included, gets a mask from the trained model.  Each mask is cleaned: shadows
+included, gets a mask from the trained model.  Each frame is first divided by its
+global per-channel gain against the background (automatic exposure and white
+balance; --no-gain-compensation skips this).  Each mask is cleaned: shadows
 dropped (pixels that look like a darker copy of the background; --no-shadows
 keeps them, for a subject whose colours are a darker shade of the background's,
 e.g. light grey clothes before a white wall); its rim refined on luminance
@@ -35,8 +37,8 @@ HELP = "video (or image folder) -> figure-ground masks by adaptive background su
 _MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
 
 
-def add_shadow_argument(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--no-shadows`` and ``--shadow-threshold``, shared with ``kms2pin track --video`` (``prefix`` starts its help)."""
+def add_lighting_arguments(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--no-shadows``, ``--shadow-threshold`` and ``--no-gain-compensation``, shared with ``kms2pin track --video`` (``prefix`` starts its help)."""
     p.add_argument("--no-shadows", action="store_true",
                    help=f"{prefix}no shadow detection: pixels that are a darker copy of the background stay foreground "
                         "(default: they are shadows, i.e. background; turn it off when the subject's colours are "
@@ -45,6 +47,10 @@ def add_shadow_argument(p: argparse.ArgumentParser, prefix: str = "") -> None:
                    help=f"{prefix}a shadow keeps at least this fraction of the background's brightness (default "
                         "0.5, OpenCV's; 0.3 also takes deeper cast shadows for background, and with them subjects "
                         "in dark shades of the background's colours)")
+    p.add_argument("--no-gain-compensation", action="store_true",
+                   help=f"{prefix}do not divide each frame by its per-channel gain against the background (default: "
+                        "the gain is measured and divided out, so that a camera's automatic exposure or white "
+                        "balance, or a dimmer light, does not turn the whole image into foreground)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -65,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-blob-area", type=int, metavar="PX",
                    help="drop foreground blobs smaller than this (default: 0.1%% of the image)")
     p.add_argument("--keep-holes", action="store_true", help="do not fill holes inside the silhouette")
-    add_shadow_argument(p)
+    add_lighting_arguments(p)
     p.add_argument("--no-edge-refinement", action="store_true",
                    help="keep the rim of each mask as the colour test gives it (default: rim pixels whose "
                         "luminance is closer to the background's are dropped, which takes off the ~1 px colour "
@@ -80,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         method=args.method, learn_frames=args.learn_frames, learn_from=args.learn_from, history=args.history,
         threshold=args.threshold, min_blob_area=args.min_blob_area, fill_holes=not args.keep_holes,
         detect_shadows=not args.no_shadows, shadow_threshold=args.shadow_threshold,
-        refine_edges=not args.no_edge_refinement,
+        refine_edges=not args.no_edge_refinement, compensate_gain=not args.no_gain_compensation,
     )
     params.check()
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1

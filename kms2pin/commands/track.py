@@ -36,7 +36,7 @@ from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWri
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ._common import add_spec_argument, read_model
-from .segment import add_shadow_argument
+from .segment import add_lighting_arguments
 
 NAME = "track"
 HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4"
@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--video; with --masks the default is the rest pose)")
     p.add_argument("--method", choices=("mog2", "knn"), default="mog2",
                    help="segmentation of --video (default mog2)")
-    add_shadow_argument(p, prefix="segmentation of --video: ")
+    add_lighting_arguments(p, prefix="segmentation of --video: ")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
@@ -287,7 +287,8 @@ def run(args: argparse.Namespace) -> int:
 
         per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method,
                                               detect_shadows=not args.no_shadows,
-                                              shadow_threshold=args.shadow_threshold)
+                                              shadow_threshold=args.shadow_threshold,
+                                              compensate_gain=not args.no_gain_compensation)
         for note in notes:
             print(f"note: {note}", file=sys.stderr)
         numbers = list(range(len(per_cam_masks[0])))
@@ -369,6 +370,7 @@ def run(args: argparse.Namespace) -> int:
             meta["segmentation"] = args.method
             meta["shadow_detection"] = not args.no_shadows
             meta["shadow_threshold"] = args.shadow_threshold
+            meta["gain_compensation"] = not args.no_gain_compensation
         (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         Camera.list_to_json(cameras, out / "cameras.json")
     except OSError as err:

@@ -39,11 +39,29 @@ Pipeline, per frame:
    background's stay the same, so the mode finds the background wherever it
    shows in more learning frames than any one colour of the subject (a subject
    that stands still is still learnt as background).
+   With ``compensate_gain`` (the default) each learning frame is first divided
+   by its per-channel gain against the middle one (:func:`channel_gains`).
 2. **Masks for every frame**: with ``"spread"`` every frame is then segmented
    in order, from the first; with ``"start"`` the learning frames are
    segmented again, with the trained model frozen (learning rate 0), before the
    rest - so every frame, including the first, gets a proper mask either way;
    nothing is flagged.
+   **Gain**: with ``compensate_gain`` each frame is first divided by its
+   per-channel gain against the learnt background: the median ratio over every
+   fourth pixel of every fourth row, leaving out the last frame's foreground
+   (:func:`channel_gains`).  A camera's automatic exposure or white balance, or
+   a dimmer light, scales the whole image; the per-pixel models then saw
+   everything as foreground.  On ``benchmarks/video.py``'s clips 0-2 (both
+   cameras), false pixels in % of the true masks' area, without -> with:
+   exposure falling to 0.7 over the 60 frames 9-41 -> 0.9-1.3; rising to 1.3
+   9-40 -> 0.9-1.4; a step to 1.25 at frame 30 370-540 -> 0.9-1.3; white
+   balance drifting (blue +20 %, red -20 %) 1.4-7.5 -> 0.9-1.3; one camera
+   with both priors then tracks each of these 12 clips to 1.16-1.32 % from
+   the true pose.  The clips' own flicker (+-5 % per frame) is taken out too:
+   over ten clips the first camera's missed pixels fell from 0.2-1.3 % to
+   0.2-0.9 %, and tracking from the true pose gave 1.12-1.39 % with one
+   camera (both priors) against 1.12-1.62 %, and 0.20-0.26 % with two
+   against 0.20-0.66 %.  Segmenting costs no more (fewer false pixels to clean).
 3. **Adaptation**: the frames after the learning frames (every frame with
    ``"spread"``) also update the model, at ``learning_rate``
    (default ``1/history``, history 500 frames: a subject that stands still
@@ -116,6 +134,7 @@ class SegmentParams:
     mode_tolerance: float = 20.0  # grey levels: learning frames that agree on the background (temporal_mode)
     refine_edges: bool = True
     edge_contrast: float = 4.0  # grey levels
+    compensate_gain: bool = True  # divide each frame by its per-channel gain against the background
 
     def check(self) -> None:
         if self.method not in METHODS:
@@ -256,6 +275,32 @@ def refine_edges(raw: np.ndarray, luma: np.ndarray, bg_luma: np.ndarray, gain: f
     return out
 
 
+#: the gain is measured on every _GAIN_STEP-th pixel of every _GAIN_STEP-th row
+_GAIN_STEP = 4
+
+
+def channel_gains(frame: np.ndarray, reference: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
+    """Per-channel gain of ``frame`` against ``reference`` (both ``(h, w, 3)``): the median
+    over pixels of their ratio, left out where the reference is dark (< 16), the frame
+    saturated (> 250) or ``exclude`` (the subject) is set.  The median ignores the subject
+    as long as it covers less than half of the pixels.  Ones when fewer than 64 pixels count."""
+    f = frame.astype(np.float32)
+    ok = (reference >= 16.0) & (f <= 250.0)
+    if exclude is not None:
+        ok &= ~exclude[:, :, None]
+    gains = np.ones(3)
+    for c in range(3):
+        sel = ok[:, :, c]
+        if np.count_nonzero(sel) >= 64:
+            gains[c] = float(np.median(f[:, :, c][sel] / reference[:, :, c][sel]))
+    return gains
+
+
+def apply_gains(frame: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """``frame`` divided by its per-channel ``gains`` (saturating ``uint8``)."""
+    return cv2.multiply(frame, (1.0 / gains[0], 1.0 / gains[1], 1.0 / gains[2], 0.0))
+
+
 def _as_bgr(frame: np.ndarray, index: int) -> np.ndarray:
     a = np.asarray(frame)
     if a.dtype != np.uint8:
@@ -351,6 +396,9 @@ class Segmenter:
         self.rate = 1.0 / params.history if params.learning_rate is None else params.learning_rate
         self.bg_luma: np.ndarray | None = None
         self.frames_seen = 0
+        self.reference: np.ndarray | None = None  # subsampled background, for the gain
+        self.subject: np.ndarray | None = None  # subsampled last raw mask's foreground
+        self.gains = np.ones(3)  # the last frame's
 
     def _check_shape(self, frame: np.ndarray, index: int) -> None:
         if self.shape is None:
@@ -363,8 +411,16 @@ class Segmenter:
                 f"{self.shape[1]}x{self.shape[0]}"
             )
 
+    def _sub(self, a: np.ndarray) -> np.ndarray:
+        return a[::_GAIN_STEP, ::_GAIN_STEP]
+
     def learn(self, frames: list[np.ndarray], epochs: int = 2) -> None:
+        if self.params.compensate_gain and frames:
+            ref = self._sub(frames[len(frames) // 2]).astype(np.float32)
+            frames = [apply_gains(f, channel_gains(self._sub(f), ref)) for f in frames]
         clean = bootstrap_frames(frames, self.params.bootstrap_diff, self.params.mode_tolerance)
+        if self.params.compensate_gain and clean:
+            self.reference = np.mean([self._sub(f) for f in clean], axis=0, dtype=np.float32)
         for _ in range(epochs):
             for k, f in enumerate(clean):
                 self.model.apply(f, learningRate=1.0 / (k + 1))
@@ -376,7 +432,12 @@ class Segmenter:
 
     def segment(self, frame: np.ndarray, rate: float | None = None) -> np.ndarray:
         rate = self.rate if rate is None else rate
+        if self.reference is not None:
+            self.gains = channel_gains(self._sub(frame), self.reference, self.subject)
+            frame = apply_gains(frame, self.gains)
         raw = self.model.apply(frame, learningRate=rate)
+        if self.reference is not None:
+            self.subject = self._sub(raw) > 0
         self.frames_seen += 1
         if self.params.refine_edges:
             luma = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)

@@ -229,10 +229,35 @@ def test_shadow_threshold_reaches_the_segmentation(tmp_path, capsys):
     assert not (bad / "trajectory.csv").exists()
     out = tmp_path / "o"
     assert main([*args, "--shadow-threshold", "0.3", "-o", str(out)]) == 0, capsys.readouterr().err
-    assert json.loads((out / "meta.json").read_text())["shadow_threshold"] == 0.3
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["shadow_threshold"] == 0.3 and meta["gain_compensation"] is True
     masks = read_masks(out / "masks" / "cam0", len(v.frames))
     # the shadow is not in the masks (16 frames are too few for the rest of the masks to be good)
     assert sum(int((m & s).sum()) for m, s in zip(masks, shadows)) < 0.02 * sum(int(s.sum()) for s in shadows)
+
+
+def test_gain_compensation_reaches_the_segmentation(tmp_path, capsys):
+    """`track --video` divides out an exposure step (the whole image 25 % brighter from
+    frame 8 on, as a camera's automatic exposure does) and `--no-gain-compensation`
+    does not: the masks it saves then hold most of the background."""
+    robot = load(str(LOWER), root="free")
+    cam = Camera.default()
+    v = walking_video(robot, cam, frames=16, seed=2)
+    video = tmp_path / "frames"
+    video.mkdir()
+    for i, f in enumerate(v.frames):
+        cv2.imwrite(str(video / f"f{i:02d}.png"), np.clip(f * (1.25 if i >= 8 else 1.0), 0, 255).astype(np.uint8))
+    cam.to_json(tmp_path / "cam.json")
+    args = ["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-progress",
+            "--no-video"]
+    false = {}
+    for extra in ([], ["--no-gain-compensation"]):
+        out = tmp_path / f"o{len(extra)}"
+        assert main([*args, *extra, "-o", str(out)]) == 0, capsys.readouterr().err
+        assert json.loads((out / "meta.json").read_text())["gain_compensation"] is not extra
+        masks = read_masks(out / "masks" / "cam0", len(v.frames))
+        false[bool(extra)] = max((m & ~t).sum() / t.sum() for m, t in zip(masks[8:], v.masks[8:]))
+    assert false[False] < 0.1 < 1.0 < false[True]
 
 
 def test_video_needs_cameras_and_exclusive_with_masks(scene, tmp_path, capsys):
