@@ -13,9 +13,11 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from conftest import SPECS
 
 from kms2pin import SpecError, parse_text
 from kms2pin.cli import main
+from kms2pin.errors import Diagnostic
 
 BASE = """\
 double fac = 1.25;
@@ -83,10 +85,11 @@ def diagnostics(text: str):
     return err.value.diagnostics
 
 
-def only(text: str, message: str, needle: str, nth: int = 0, exact: bool = True):
-    """The spec has exactly one error, with ``message``, at ``needle``."""
+def only(text: str, message: str, needle: str, nth: int = 0, exact: bool = True, call: str = ""):
+    """The spec has exactly one error, with ``message``, at ``needle``; for an error in
+    a body function, followed by the note naming the ``call`` that ran it."""
     ds = diagnostics(text)
-    assert len(ds) == 1, "\n".join(d.format() for d in ds)
+    assert len(ds) == (2 if call else 1), "\n".join(d.format() for d in ds)
     d = ds[0]
     if exact:
         assert d.message == message
@@ -95,11 +98,21 @@ def only(text: str, message: str, needle: str, nth: int = 0, exact: bool = True)
     assert (d.line, d.column) == where(text, needle, nth)
     assert d.path == "walker.kms"
     assert d.source_line == text.splitlines()[d.line - 1]
-    assert cli_report(text) == [
+    report = [
         f"{{path}}:{d.line}:{d.column}: error: {d.message}",
         "    " + d.source_line,
         "    " + " " * (d.column - 1) + "^",
     ]
+    if call:
+        line, col = where(text, call + "(")
+        source = text.splitlines()[line - 1]
+        assert ds[1] == Diagnostic("walker.kms", line, col, f"in call '{call}(...)'", source, "note")
+        report += [
+            f"{{path}}:{line}:{col}: note: in call '{call}(...)'",
+            "    " + source,
+            "    " + " " * (col - 1) + "^",
+        ]
+    assert cli_report(text) == report
     return d
 
 
@@ -157,12 +170,27 @@ def test_unexpected_character():
     only(text, "syntax error: unexpected character '@'", "@")
 
 
+def test_unterminated_comment_points_at_its_start():
+    only(BASE + "/* never closed\n", "unterminated comment", "/* never")
+    text = edit("double fac = 1.25;", "double fac = 1.25 /* never closed;")
+    only(text, "unterminated comment", "/* never")
+
+
+def test_a_syntax_error_before_an_unterminated_comment_comes_first():
+    text = edit("double fac = 1.25;", "double fac = 1.25 @;") + "/* never closed\n"
+    only(text, "syntax error: unexpected character '@'", "@")
+
+
+def test_a_stray_token_after_a_semicolon_is_not_a_missing_semicolon():
+    only(BASE + "* 2;\n", "syntax error: unexpected '*'; expected one of", "* 2", exact=False)
+
+
 # ----------------------------------------------------------------------------- names
 
 
 def test_unknown_variable():
     text = edit("fac*length);", "fac*lenght);")
-    only(text, "unknown variable 'lenght' (did you mean 'length'?)", "lenght")
+    only(text, "unknown variable 'lenght' (did you mean 'length'?)", "lenght", call="Leg leftThigh")
 
 
 def test_unknown_body():
@@ -247,17 +275,59 @@ def test_duplicate_bvec_in_a_body():
 def test_duplicate_bvec_in_a_body_function_is_reported_once_per_body():
     text = edit("    bvec knee {", "    bvec hip { pos(0, 0, 0); orient(1, 0, 0); }\n    bvec knee {")
     ds = diagnostics(text)
-    assert [d.message for d in ds] == [
-        "body 'leftThigh' already has a bound vector 'hip' (line 6)",
-        "body 'leftShin' already has a bound vector 'hip' (line 6)",
+    assert [(d.severity, d.message) for d in ds] == [
+        ("error", "body 'leftThigh' already has a bound vector 'hip' (line 6)"),
+        ("note", "in call 'Leg leftThigh(...)'"),
+        ("error", "body 'leftShin' already has a bound vector 'hip' (line 6)"),
+        ("note", "in call 'Leg leftShin(...)'"),
     ]
-    assert {(d.line, d.column) for d in ds} == {where(text, "hip", 1)}
+    hip = where(text, "hip", 1)
+    assert [(d.line, d.column) for d in ds] == [hip, where(text, "Leg leftThigh"), hip, where(text, "Leg leftShin")]
 
 
 def test_an_error_inside_a_body_function_is_reported_once():
-    """Both Leg instantiations run the bad line; one message, at the line in the function."""
+    """Both Leg instantiations run the bad line; one message, at the line in the function,
+    with a note naming the first call."""
     text = edit("fac*length);", "fac*lenght);")
-    assert len(diagnostics(text)) == 1
+    ds = diagnostics(text)
+    assert [(d.severity, d.line, d.column) for d in ds] == [
+        ("error", *where(text, "lenght")),
+        ("note", *where(text, "Leg leftThigh")),
+    ]
+
+
+def test_a_value_error_in_a_body_function_names_the_call_that_caused_it():
+    text = edit("Leg leftShin(0.4, true)", "Leg leftShin(0.4, false)")
+    text = edit("pos(0, 0, 0.8*length);", "pos(0, 0, 0.8*length / (left ? 1 : 0));", text)
+    only(text, "division by zero", "/ (left", call="Leg leftShin")
+
+
+def test_a_check_of_a_finished_body_names_the_call_that_built_it():
+    text = edit("Leg leftShin(0.4, true)", "Leg leftShin(-0.4, true)")
+    ds = diagnostics(text)
+    assert [(d.severity, d.line, d.column, d.message) for d in ds] == [
+        ("error", *where(text, "innerLam(0.1"), "innerLam semi-axes must be positive, got (0.1, 0.1, -0.4)"),
+        ("note", *where(text, "Leg leftShin"), "in call 'Leg leftShin(...)'"),
+        ("error", *where(text, "outerLam(fac"), "outerLam semi-axes must be positive, got (0.125, 0.125, -0.5)"),
+        ("note", *where(text, "Leg leftShin"), "in call 'Leg leftShin(...)'"),
+    ]
+
+
+def test_the_fullbody_shin_with_a_negative_radius_is_reported_with_its_call(tmp_path, capsys):
+    lines = (SPECS / "fullbody.kms").read_text().splitlines(keepends=True)
+    assert lines[165] == "    Shin rightShin(0.55, 0.23);\n"
+    lines[165] = "    Shin rightShin(0.55, -0.23);\n"
+    spec = tmp_path / "fb_neg.kms"
+    spec.write_text("".join(lines))
+    assert main(["check", str(spec)]) == 1
+    assert capsys.readouterr().err.splitlines()[:6] == [
+        f"{spec}:71:5: error: innerLam semi-axes must be positive, got (-0.23, -0.23, 0.55)",
+        "        innerLam(radius,radius,length);",
+        "        ^",
+        f"{spec}:166:5: note: in call 'Shin rightShin(...)'",
+        "        Shin rightShin(0.55, -0.23);",
+        "        ^",
+    ]
 
 
 # ----------------------------------------------------------------------------- joints and the tree
@@ -379,6 +449,11 @@ def test_value_errors_in_expressions():
     only(text, "this number is too large", "1e999")
 
 
+def test_deep_nesting_is_reported_where_the_expression_starts():
+    text = edit("double fac = 1.25;", "double fac = " + "1 + (" * 5000 + "1" + ")" * 5000 + ";")
+    only(text, "this expression is nested too deeply", "+ (")
+
+
 # ----------------------------------------------------------------------------- statements in the wrong place
 
 
@@ -445,18 +520,6 @@ def test_value_errors_in_expressions():
             "a body function is not allowed in an ellipsoidBody; it belongs at top level or in a rigidBodySystem",
             "ellipsoidBody F",
         ),
-        (
-            "    innerLam(0.1, 0.1, length);",
-            "    innerLam(0.1, 0.1, length);\n    sin(30);",
-            "the value of 'sin(...)' is not used; a statement here does nothing",
-            "sin(30)",
-        ),
-        (
-            "    innerLam(0.1, 0.1, length);",
-            "    innerLam(0.1, 0.1, length);\n    outerlam(1, 1, 1);",
-            "unknown statement 'outerlam' (did you mean 'outerLam'?)",
-            "outerlam",
-        ),
     ],
     ids=[
         "innerLam-outside-body",
@@ -469,12 +532,23 @@ def test_value_errors_in_expressions():
         "constraint-in-body",
         "bvec-in-bvec",
         "function-in-body",
-        "unused-value",
-        "unknown-statement",
     ],
 )
 def test_statement_in_the_wrong_place(old, new, message, needle):
     only(edit(old, new), message, needle)
+
+
+@pytest.mark.parametrize(
+    "statement, message",
+    [
+        ("sin(30);", "the value of 'sin(...)' is not used; a statement here does nothing"),
+        ("outerlam(1, 1, 1);", "unknown statement 'outerlam' (did you mean 'outerLam'?)"),
+    ],
+    ids=["unused-value", "unknown-statement"],
+)
+def test_a_bad_statement_in_a_body_function(statement, message):
+    text = edit("    innerLam(0.1, 0.1, length);", f"    innerLam(0.1, 0.1, length);\n    {statement}")
+    only(text, message, statement, call="Leg leftThigh")
 
 
 def test_bad_joint_type():
@@ -513,7 +587,7 @@ def test_every_error_is_reported_in_one_run_sorted_by_position():
     text = edit("outerLam(0.25, 0.125, 0.125);", "outerLam(0.25, 0.05, 0.125);", text)  # not enclosing
     text = edit("leftThigh.knee, 20", "leftThigh.kne, 20", text)  # unknown bvec
     text = edit("revolute(pelvis.leftHip", "prismatic(pelvis.leftHip", text)  # bad joint type
-    ds = diagnostics(text)
+    ds = [d for d in diagnostics(text) if d.severity == "error"]
     got = [(d.line, d.column) for d in ds]
     assert got == sorted(got)
     assert [(d.line, d.column) for d in ds] == [

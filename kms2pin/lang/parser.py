@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 
 from lark import Lark, Token, Transformer
@@ -25,6 +26,9 @@ _TERMINAL_WORDS = {
     "AND": "'&&'",
     "$END": "end of file",
 }
+
+# the lexer's view of comments, so an unclosed '/*' (which it reads as '/' and '*') can be named
+_COMMENTS = re.compile(r"//[^\n]*|/\*.*?\*/|(/\*)", re.S)
 
 
 def _loc(meta_or_token) -> Loc:
@@ -160,9 +164,31 @@ def _describe_token(tok: Token) -> str:
     return f"'{tok}'"
 
 
+def _unterminated_comment(text: str) -> int | None:
+    """Offset of the first '/*' that is never closed, or None."""
+    for m in _COMMENTS.finditer(text):
+        if m.group(1):
+            return m.start()
+    return None
+
+
+def _error_offset(err: UnexpectedInput, text: str) -> int:
+    if isinstance(err, UnexpectedCharacters):
+        return err.pos_in_stream
+    tok = getattr(err, "token", None)
+    if tok is None or tok.type == "$END" or tok.start_pos is None:
+        return len(text)
+    return tok.start_pos
+
+
 def _syntax_diagnostic(err: UnexpectedInput, text: str, path: str) -> Diagnostic:
     parser = _parser()
     lines = text.splitlines()
+    comment = _unterminated_comment(text)
+    if comment is not None and comment <= _error_offset(err, text):
+        line = text.count("\n", 0, comment) + 1
+        col = comment - (text.rfind("\n", 0, comment) + 1) + 1
+        return Diagnostic(path, line, col, "unterminated comment", lines[line - 1])
     if isinstance(err, UnexpectedCharacters):
         line, col = err.line, err.column
         ch = text[err.pos_in_stream] if 0 <= err.pos_in_stream < len(text) else "?"
@@ -179,7 +205,8 @@ def _syntax_diagnostic(err: UnexpectedInput, text: str, path: str) -> Diagnostic
         else:
             message = f"unexpected {_describe_token(tok)}; expected {what}"
             prev = (getattr(err, "token_history", None) or [None])[-1]
-            if expected & {"SEMICOLON", "SEMI"} and prev is not None and prev.end_line is not None:
+            ends_statement = prev is not None and prev.type not in ("SEMI", "LBRACE", "RBRACE")
+            if expected & {"SEMICOLON", "SEMI"} and ends_statement and prev.end_line is not None:
                 if prev.end_line != line:
                     line, col = prev.end_line, prev.end_column
                     message = f"expected ';' after {_describe_token(prev)}"

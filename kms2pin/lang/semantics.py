@@ -36,6 +36,9 @@ class _Fail(Exception):
         self.loc, self.message = loc, message
 
 
+Calls = tuple[tuple[Loc, str], ...]  # body-function calls being run, innermost first: (call site, note)
+
+
 # --- maths functions; trigonometry in degrees (thesis Display 4.4 uses cos(offsetAngle))
 
 _D2R = math.pi / 180.0
@@ -108,6 +111,7 @@ class _BvecB:
     orient: tuple | None = None
     orient_loc: Loc | None = None
     poisoned: bool = False
+    calls: Calls = ()  # the calls that ran its definition
 
 
 @dataclass
@@ -122,6 +126,8 @@ class _BodyB:
     bvecs: dict[str, _BvecB] = field(default_factory=dict)
     poisoned: bool = False  # broken: no message about it, and references to it are silent
     failed: bool = False  # a statement in it failed: no "has no innerLam" echo
+    calls: Calls = ()  # where its name is
+    def_calls: Calls = ()  # inside its braces: one call more for an instantiated body
 
 
 @dataclass
@@ -204,18 +210,25 @@ class Analyzer:
     def __init__(self, text: str, path: str):
         self.path = path
         self.lines = text.splitlines()
-        self.diags: list[Diagnostic] = []
+        self.diags: list[list[Diagnostic]] = []  # each error with its notes
         self.systems: list[_SystemB] = []
         self.inertial: dict[str, _BvecB] = {}
         self.joints: list[_JointB] = []
         self.constraint_failed = False  # then reachability errors would only echo it
         self.dry = 0  # > 0: only type-check (the operand a short circuit or '?:' skips)
+        self.calls: Calls = ()
 
     # ---------------------------------------------------------------- errors
-    def error(self, loc: Loc, message: str) -> None:
+    def error(self, loc: Loc, message: str, calls: Calls | None = None) -> None:
+        """Record an error, followed by one note per body-function call it happened in
+        (by default the calls being run)."""
+        notes = [self.diagnostic(at, note, "note") for at, note in (self.calls if calls is None else calls)]
+        self.diags.append([self.diagnostic(loc, message), *notes])
+
+    def diagnostic(self, loc: Loc, message: str, severity: str = "error") -> Diagnostic:
         line = max(loc.line, 1)
         src = self.lines[line - 1] if line <= len(self.lines) else ""
-        self.diags.append(Diagnostic(self.path, line, max(loc.column, 1), message, src))
+        return Diagnostic(self.path, line, max(loc.column, 1), message, src, severity)
 
     # ---------------------------------------------------------------- driver
     def run(self, stmts: tuple[A.Node, ...]) -> ModelSpec:
@@ -225,11 +238,13 @@ class Analyzer:
         if not self.diags and not systems:
             self.error(Loc(1, 1), "the spec defines no rigidBodySystem")
         if self.diags:
-            # a body function runs once per instantiation: report each mistake in it once
-            unique: dict[tuple, Diagnostic] = {}
-            for d in self.diags:
-                unique.setdefault((d.line, d.column, d.message), d)
-            raise SpecError(sorted(unique.values(), key=lambda d: (d.line, d.column)))
+            # a body function runs once per instantiation: report each mistake in it once,
+            # with the notes of the first call that made it
+            unique: dict[tuple, list[Diagnostic]] = {}
+            for error, *notes in self.diags:
+                unique.setdefault((error.line, error.column, error.message), [error, *notes])
+            ordered = sorted(unique.values(), key=lambda ds: (ds[0].line, ds[0].column))
+            raise SpecError([d for ds in ordered for d in ds])
         inertial = {n: self.freeze_bvec(b) for n, b in self.inertial.items()}
         return ModelSpec(tuple(systems), inertial, self.path)
 
@@ -407,7 +422,7 @@ class Analyzer:
 
     def exec_bvec(self, s: A.BvecDef, scope: _Scope, ctx: _Ctx) -> None:
         self.need(ctx, ("top", "system", "body"), s.loc, "a bvec", "in an ellipsoidBody or at top level")
-        bvec = _BvecB(s.name, s.name_loc, ctx.body)
+        bvec = _BvecB(s.name, s.name_loc, ctx.body, calls=self.calls)
         if ctx.where == "body":
             body = ctx.body
             if s.name in body.bvecs:
@@ -422,7 +437,7 @@ class Analyzer:
 
     def new_body(self, name: str, loc: Loc, scope: _Scope, ctx: _Ctx) -> _BodyB:
         system = ctx.system
-        body = _BodyB(name, loc, system)
+        body = _BodyB(name, loc, system, calls=self.calls, def_calls=self.calls)
         if name == WORLD:
             self.error(loc, f"'{WORLD}' cannot name a body: the URDF uses it for the inertial frame")
             body.poisoned = True  # still declared, so references to it stay quiet
@@ -477,7 +492,12 @@ class Analyzer:
             fscope.names[p.name] = _Sym("var", p.loc, p.type, v)
         body = self.new_body(s.name, s.name_loc, scope, ctx)
         body.poisoned = body.poisoned or poisoned
-        self.exec_block(fdef.body, fscope, _Ctx("body", ctx.system, body))
+        outer = self.calls
+        self.calls = body.def_calls = ((s.loc, f"in call '{s.func} {s.name}(...)'"), *outer)
+        try:
+            self.exec_block(fdef.body, fscope, _Ctx("body", ctx.system, body))
+        finally:
+            self.calls = outer
 
     def exec_constraint(self, s: A.Constraint, scope: _Scope, ctx: _Ctx) -> None:
         try:
@@ -630,7 +650,15 @@ class Analyzer:
                 raise _Fail(e.loc, f"unary '{e.op}' needs a double, not {t}")
             return "double", POISON if v is POISON else (-v if e.op == "-" else v)
         if isinstance(e, A.BinOp):
-            return self.eval_binop(e, scope)
+            # 1 + 2 + ... + n is deep on the left but not nested: a loop, not recursion
+            chain = []
+            while isinstance(e, A.BinOp):
+                chain.append(e)
+                e = e.left
+            t, v = self.eval(e, scope)
+            for node in reversed(chain):
+                t, v = self.eval_binop(node, t, v, scope)
+            return t, v
         if isinstance(e, A.Cond):
             t, v = self.eval(e.test, scope)
             if t != "bool":
@@ -655,9 +683,9 @@ class Analyzer:
         finally:
             self.dry -= dry
 
-    def eval_binop(self, e: A.BinOp, scope: _Scope) -> tuple[str, object]:
+    def eval_binop(self, e: A.BinOp, tl: str, vl: object, scope: _Scope) -> tuple[str, object]:
+        """``e`` whose left operand has the value ``vl`` of type ``tl``."""
         op = e.op
-        tl, vl = self.eval(e.left, scope)
         if op in ("&&", "||"):
             if tl != "bool":
                 raise _Fail(e.left.loc, f"'{op}' needs bool operands; the left one is {tl}")
@@ -769,13 +797,13 @@ class Analyzer:
         for what, lam, loc in (("innerLam", body.inner, body.inner_loc), ("outerLam", body.outer, body.outer_loc)):
             if lam is None:
                 if not body.failed:
-                    self.error(body.loc, f"body '{body.name}' has no {what}(x, y, z)")
+                    self.error(body.loc, f"body '{body.name}' has no {what}(x, y, z)", body.calls)
                 body.poisoned = True
             elif min(lam) <= 0:
-                self.error(loc, f"{what} semi-axes must be positive, got ({_fmt(lam)})")
+                self.error(loc, f"{what} semi-axes must be positive, got ({_fmt(lam)})", body.def_calls)
                 body.poisoned = True
             elif max(lam) > MAX_LENGTH:
-                self.error(loc, f"{what} semi-axes must be at most {MAX_LENGTH:g}, got ({_fmt(lam)})")
+                self.error(loc, f"{what} semi-axes must be at most {MAX_LENGTH:g}, got ({_fmt(lam)})", body.def_calls)
                 body.poisoned = True
         if body.poisoned:
             return
@@ -784,6 +812,7 @@ class Analyzer:
                 body.outer_loc,
                 f"the outer ellipsoid ({_fmt(body.outer)}) of body '{body.name}' does not enclose "
                 f"the inner one ({_fmt(body.inner)}): each outerLam semi-axis must be >= the innerLam one",
+                body.def_calls,
             )
             body.poisoned = True
 
@@ -793,10 +822,14 @@ class Analyzer:
         owner = f" of body '{bv.body.name}'" if bv.body else ""
         for what, val in (("pos", bv.pos), ("orient", bv.orient)):
             if val is None:
-                self.error(bv.loc, f"bound vector '{bv.name}'{owner} has no {what}(x, y, z)")
+                self.error(bv.loc, f"bound vector '{bv.name}'{owner} has no {what}(x, y, z)", bv.calls)
                 bv.poisoned = True
         if bv.orient is not None and _norm(bv.orient) < 1e-12:
-            self.error(bv.orient_loc, f"orient vector of '{bv.name}'{owner} is zero; a bound vector needs a direction")
+            self.error(
+                bv.orient_loc,
+                f"orient vector of '{bv.name}'{owner} is zero; a bound vector needs a direction",
+                bv.calls,
+            )
             bv.poisoned = True
 
     def freeze_bvec(self, bv: _BvecB) -> BoundVector:
@@ -888,7 +921,11 @@ class Analyzer:
             return None
         for name, body in sb.bodies.items():
             if name not in parent_of and not body.poisoned and not self.constraint_failed:
-                self.error(body.loc, f"body '{name}' has no path to the inertial frame (no chain of joints connects it)")
+                self.error(
+                    body.loc,
+                    f"body '{name}' has no path to the inertial frame (no chain of joints connects it)",
+                    body.calls,
+                )
                 bad = True
         if bad or self.diags or any(sb.bodies[n].poisoned for n in order):
             return None  # with any error there is no model (and bvecs may be incomplete)
