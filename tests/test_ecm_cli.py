@@ -155,8 +155,8 @@ def test_track_wrong_size_names_file_and_frame(tmp_path, cams2, capsys):
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err
     assert "frame_00001.png" in err and "frame 1" in err and "120x100" in err
-    # rows up to the bad frame were written
-    assert len((tmp_path / "o" / "trajectory.csv").read_text().splitlines()) == 2
+    # every mask's size is checked (from its PNG header) before anything is written
+    assert not (tmp_path / "o").exists()
 
 
 def test_track_missing_frame_and_unreadable(tmp_path, cams2, capsys):
@@ -193,6 +193,97 @@ def test_evaluate_bad_folder(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "x"), str(tmp_path / "t.csv")]) == 1
     assert "not a kms2pin track output" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "nope"), str(tmp_path / "t.csv")]) == 2
+
+
+PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """A 6-frame one-camera synth and its track: (track output folder, truth.csv)."""
+    d = tmp_path_factory.mktemp("evaluate")
+    assert main(["synth", LOWER, "--frames", "6", "--seed", "1", "-o", str(d / "masks")]) == 0
+    out = d / "out"
+    assert main(["track", LOWER, "--masks", str(d / "masks"), "--no-progress", "--no-video", "-o", str(out)]) == 0
+    return out, d / "masks" / "truth.csv"
+
+
+def _copy_track(out, dest, rows=None):
+    """A copy of the track output ``out`` keeping the header and the first ``rows`` frames."""
+    dest.mkdir()
+    for f in out.iterdir():
+        if f.is_file():
+            (dest / f.name).write_bytes(f.read_bytes())
+    if rows is not None:
+        lines = (out / "trajectory.csv").read_text().splitlines(keepends=True)
+        (dest / "trajectory.csv").write_text("".join(lines[: rows + 1]))
+    return dest
+
+
+def test_evaluate_warns_of_a_frame_count_mismatch_and_evaluates_the_common_frames(tracked, tmp_path, capsys):
+    out, truth = tracked
+    lines = truth.read_text().splitlines(keepends=True)
+    short = tmp_path / "truth4.csv"
+    short.write_text("".join(lines[:5]))  # header and 4 frames
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(short), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert f"warning: {out} has 6 frames, {short} 4: evaluating the first 4" in cap.err
+    assert json.loads(cap.out)["frames"] == 4
+    out4 = _copy_track(out, tmp_path / "out4", rows=4)
+    assert main(["evaluate", str(out4), str(truth)]) == 0
+    cap = capsys.readouterr()
+    assert f"warning: {out4} has 4 frames, {truth} 6: evaluating the first 4" in cap.err
+    assert cap.out.startswith("4 frames;")
+    assert main(["evaluate", str(out), str(truth)]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_evaluate_rejects_a_truth_with_a_non_finite_cell_naming_its_line_and_column(tracked, tmp_path, capsys):
+    out, truth = tracked
+    rows = [r.split(",") for r in truth.read_text().splitlines()]
+    rows[2][rows[0].index("leftShin_knee")] = "nan"
+    bad = tmp_path / "t_nan.csv"
+    bad.write_text("".join(",".join(r) + "\n" for r in rows))
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(bad)]) == 1
+    cap = capsys.readouterr()
+    assert cap.err == f"{bad}:3: column 'leftShin_knee': 'nan' is not a finite number\n"
+    assert cap.out == ""
+
+
+def test_evaluate_reports_binary_files_without_a_traceback(tracked, tmp_path, capsys):
+    out, truth = tracked
+    png = tmp_path / "frame_00000.png"
+    png.write_bytes(PNG)
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(png)]) == 1
+    assert capsys.readouterr().err == f"{png}: not a text (CSV) file\n"
+    for name, kind in (("trajectory.csv", "CSV"), ("meta.json", "JSON"), ("cameras.json", "JSON")):
+        bad = _copy_track(out, tmp_path / name.replace(".", "_"))
+        (bad / name).write_bytes(PNG)
+        assert main(["evaluate", str(bad), str(truth)]) == 1
+        assert capsys.readouterr().err == f"{bad / name}: not a text ({kind}) file\n"
+
+
+def test_evaluate_names_a_header_only_file_and_a_directory_given_as_truth(tracked, tmp_path, capsys):
+    out, truth = tracked
+    header = tmp_path / "header.csv"
+    header.write_text(truth.read_text().splitlines(keepends=True)[0])
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(header)]) == 1
+    assert capsys.readouterr().err == f"{header}: no frames to evaluate (only a header)\n"
+    assert main(["evaluate", str(out), str(tmp_path)]) == 2
+    assert f"{tmp_path}: is a directory, not a trajectory CSV file" in capsys.readouterr().err
+    assert main(["evaluate", str(truth), str(truth)]) == 2
+    assert f"{truth}: not a folder" in capsys.readouterr().err
+
+
+def test_synth_reports_a_binary_camera_file_without_a_traceback(tmp_path, capsys):
+    cams = tmp_path / "cams.json"
+    cams.write_bytes(PNG)
+    assert main(["synth", LOWER, "--frames", "2", "--cameras", str(cams), "-o", str(tmp_path / "m")]) == 1
+    assert capsys.readouterr().err == f"{cams}: not a text (JSON) file\n"
 
 
 def test_track_reports_frames_it_cannot_fit(tmp_path, cams2, capsys):
@@ -242,3 +333,114 @@ def test_upright_with_a_fixed_root_says_it_does_nothing(tmp_path, cams2, capsys)
     assert main([*argv, "-o", str(out)]) == 0
     assert "with --root spec they do nothing" in capsys.readouterr().err
     assert json.loads((out / "meta.json").read_text())["root"] == "spec"
+
+
+def test_a_damaged_mask_stops_the_track_with_its_outputs_complete_up_to_there(tmp_path, capsys):
+    """A mask that is a PNG by its header but cut short (its size is right) stops the run at
+    its frame: trajectory.csv and poses.npz hold the frames before it, meta.json says the
+    track is not complete, and evaluate warns of both."""
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "6", "-o", str(masks)]) == 0
+    bad = masks / "cam0" / "frame_00004.png"
+    bad.write_bytes(bad.read_bytes()[:40])
+    out = tmp_path / "o"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "frame_00004.png: frame 4: cannot read the image" in err
+    assert f"stopped at frame 4; outputs in {out} are up to frame 3" in err
+    assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 4
+    with np.load(out / "poses.npz") as z:
+        assert z["body_poses"].shape[0] == 4
+    assert json.loads((out / "meta.json").read_text())["complete"] is False
+    assert main(["evaluate", str(out), str(masks / "truth.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "the track stopped before its last frame" in err and "has 4 frames" in err and "truth.csv 6" in err
+
+
+def test_a_finished_track_is_complete_and_a_rerun_replaces_the_earlier_outputs(tmp_path, capsys):
+    """A run that tracks every frame says so in meta.json; a second run into the same
+    folder removes the first one's outputs that it does not write itself (here
+    overlay.mp4, with --no-video), and says so."""
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    out = tmp_path / "o"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(out)]) == 0
+    assert (out / "overlay.mp4").is_file()
+    assert json.loads((out / "meta.json").read_text())["complete"] is True
+    capsys.readouterr()
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
+    # trajectory.csv, poses.npz, overlay.mp4 and animation.html
+    assert f"note: {out}: removed 4 file(s) of an earlier run" in capsys.readouterr().err
+    assert not (out / "overlay.mp4").exists()
+    assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 3
+
+
+def test_every_mask_empty_is_an_error_before_anything_is_written(tmp_path, capsys):
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    for p in (masks / "cam0").iterdir():
+        cv2.imwrite(str(p), np.zeros((240, 320), np.uint8))
+    out = tmp_path / "o"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(out)]) == 1
+    assert "every mask is empty: nothing to track" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_an_empty_first_frame_keeps_the_initial_pose(tmp_path, capsys):
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    cv2.imwrite(str(masks / "cam0" / "frame_00000.png"), np.zeros((240, 320), np.uint8))
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 0
+    assert "frame 0: empty mask" in (err := capsys.readouterr().err) and "the initial pose kept" in err
+
+
+def test_a_camera_file_may_hold_a_list(tmp_path, cams2, capsys):
+    """--camera takes synth's own cameras.json (a list) as well as one-camera files."""
+    masks = _synth(tmp_path, cams2, frames=2)
+    out = tmp_path / "o"
+    argv = ["track", LOWER, "--masks", str(masks), "--camera", str(masks / "cameras.json"), "--no-progress",
+            "--no-video", "-o", str(out)]
+    assert main(argv) == 0
+    assert json.loads((out / "meta.json").read_text())["cameras"] == 2
+
+
+def test_synth_into_a_used_folder_removes_the_longer_runs_frames(tmp_path, capsys):
+    d = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "5", "-o", str(d)]) == 0
+    assert main(["synth", LOWER, "--frames", "2", "--motion", "sweep", "-o", str(d)]) == 0
+    assert "removed 3 older mask(s)" in capsys.readouterr().out
+    assert sorted(p.name for p in (d / "cam0").iterdir()) == ["frame_00000.png", "frame_00001.png"]
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["synth", LOWER, "--seed", "-1"], "--seed"),
+        (["synth", LOWER, "--frames", "0"], "--frames"),
+        (["synth", LOWER, "--noise", "2"], "--noise"),
+        (["synth", LOWER, "--size-mismatch", "1"], "--size-mismatch"),
+        (["track", LOWER, "--masks", "m", "--fps", "0"], "--fps"),
+        (["track", LOWER, "--masks", "m", "--fps", "-5"], "--fps"),
+        (["segment", "v.avi", "--learn-frames", "-1"], "--learn-frames"),
+        (["segment", "v.avi", "--history", "0"], "--history"),
+        (["segment", "v.avi", "--shadow-threshold", "1"], "--shadow-threshold"),
+        (["camera", "make", "--width", "0", "--height", "240", "--fov", "50"], "--width"),
+        (["camera", "make", "--width", "320", "--height", "240", "--fov", "180"], "--fov"),
+    ],
+)
+def test_out_of_range_options_are_usage_errors_naming_the_option(tmp_path, capsys, argv, option):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "-o", str(out)])
+    assert exc.value.code == 2
+    assert f"argument {option}" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_options_that_do_nothing_say_so(tmp_path, capsys):
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "2", "-o", str(masks)]) == 0
+    argv = ["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]
+    assert main([*argv, "--shadow-threshold", "0.3", "--no-size-calibration", "--size-every", "3"]) == 0
+    err = capsys.readouterr().err
+    assert "with --masks they do nothing" in err and "with --no-size-calibration it does nothing" in err

@@ -11,6 +11,61 @@ from ..lang import parse_text, read_spec
 from ..model import ModelSpec
 
 
+def _number(text: str, kind: type) -> float | int:
+    try:
+        value = kind(text)
+    except ValueError:
+        what = "a whole number" if kind is int else "a number"
+        raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+    return value
+
+
+def count(text: str) -> int:
+    """argparse type: a whole number >= 0."""
+    value = _number(text, int)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got '{text}'")
+    return value
+
+
+def positive_count(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    value = _number(text, int)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got '{text}'")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    value = _number(text, float)
+    if not 0.0 <= value < float("inf"):  # also rejects nan
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
+    return value
+
+
+def positive(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _number(text, float)
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got '{text}'")
+    return value
+
+
+def in_range(lo: float, hi: float, hi_open: bool = False, lo_open: bool = False):
+    """argparse type: a number in [lo, hi] (brackets open as asked)."""
+
+    def parse(text: str) -> float:
+        value = _number(text, float)
+        ok = (lo < value if lo_open else lo <= value) and (value < hi if hi_open else value <= hi)
+        if not ok:
+            interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+            raise argparse.ArgumentTypeError(f"expected a number in {interval}, got '{text}'")
+        return value
+
+    return parse
+
+
 def add_spec_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("spec", metavar="MODEL.kms", help="model specification file")
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from ..errors import CameraError
 from ..video.calibration import DISTORTION_MODELS, calibrate_chessboard, make_camera, with_pose
 from ..video.io import list_images
-from ._common import write_outputs
+from ._common import in_range, positive, positive_count, write_outputs
 
 NAME = "camera"
 HELP = "make a camera file from a field of view, or calibrate one from chessboard photos"
@@ -45,9 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="camera_command", metavar="ACTION", required=True)
     m = sub.add_parser("make", help="camera from image size + vertical field of view + pose",
                        description="Pinhole camera from the image size, vertical field of view and pose.")
-    m.add_argument("--width", type=int, required=True, help="image width in pixels")
-    m.add_argument("--height", type=int, required=True, help="image height in pixels")
-    m.add_argument("--fov", type=float, required=True, metavar="DEG",
+    m.add_argument("--width", type=positive_count, required=True, help="image width in pixels")
+    m.add_argument("--height", type=positive_count, required=True, help="image height in pixels")
+    m.add_argument("--fov", type=in_range(0.0, 180.0, lo_open=True, hi_open=True), required=True, metavar="DEG",
                    help="vertical field of view (full image height) in degrees")
     _add_pose(m, "the world origin")
     c = sub.add_parser("calibrate", help="intrinsics + distortion from chessboard photos",
@@ -55,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("images", nargs="+", metavar="IMAGE", help="chessboard photos (files or folders)")
     c.add_argument("--board", default="9x6", metavar="COLSxROWS",
                    help="inner corners per row x per column (default 9x6, a board of 10x7 squares)")
-    c.add_argument("--square", type=float, required=True, metavar="METRES", help="side of one square")
+    c.add_argument("--square", type=positive, required=True, metavar="METRES", help="side of one square")
     c.add_argument("--distortion", choices=DISTORTION_MODELS, default="standard",
                    help="lens model: none, radial (k1 k2), standard (k1 k2 p1 p2; default), full (+ k3)")
     _add_pose(c, "identity pose: camera frame = world frame")

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
+from ..cli import UsageError
 from ..ecm.camera import Camera
 from ..ecm.evaluate import evaluate
 from ..ecm.tracker import Trajectory
@@ -27,23 +29,46 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder (OUT is the folder written by kms2pin track)")
     if not out.is_dir():
         raise FileNotFoundError(2, "no such folder", str(out))
     for name in ("meta.json", "model.kms", "trajectory.csv"):
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
+    if Path(args.truth).is_dir():
+        raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")
     if not Path(args.truth).is_file():
         raise FileNotFoundError(2, "no such file", args.truth)
+    meta_path = out / "meta.json"
     try:
-        meta = json.loads((out / "meta.json").read_text())
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InputDataError(f"{meta_path}: not a text (JSON) file") from None
     except ValueError as err:
-        raise InputDataError(f"{out / 'meta.json'}: not valid JSON ({err})") from None
+        raise InputDataError(f"{meta_path}: not valid JSON ({err})") from None
+    first = meta.get("first_frame", 0) if isinstance(meta, dict) else None
+    if not isinstance(first, int) or isinstance(first, bool) or first < 0:
+        raise InputDataError(f"{meta_path}: not the metadata of kms2pin track (expected an object "
+                             "with a frame number 'first_frame')")
+    if meta.get("complete") is False:  # interrupted, or stopped by bad input
+        print(f"kms2pin evaluate: warning: {out}: the track stopped before its last frame "
+              f"({meta_path}: complete false)", file=sys.stderr)
     spec = read_model(str(out / "model.kms"))
     robot = Robot(spec, spec.system(meta.get("system")), meta.get("root", "free"))
     tracked = Trajectory.from_csv(robot, out / "trajectory.csv")
     truth = Trajectory.from_csv(robot, args.truth)
-    first = int(meta.get("first_frame", 0))
+    for path, traj in ((out / "trajectory.csv", tracked), (args.truth, truth)):
+        if len(traj) == 0:
+            raise InputDataError(f"{path}: no frames to evaluate (only a header)")
+    if first >= len(truth):
+        raise InputDataError(f"{args.truth}: {len(truth)} frames, but the track starts at frame {first} "
+                             f"({meta_path}: first_frame)")
     truth = Trajectory(robot, truth.q[first:])
+    if len(tracked) != len(truth):
+        since = f" from frame {first}" if first else ""
+        print(f"kms2pin evaluate: warning: {out} has {len(tracked)} frames, {args.truth} {len(truth)}{since}: "
+              f"evaluating the first {min(len(tracked), len(truth))}", file=sys.stderr)
     # one camera: the error split along and across its viewing rays (depth, and what it sees)
     cameras = Camera.list_from_json(out / "cameras.json") if (out / "cameras.json").is_file() else []
     rep = evaluate(robot, tracked, truth, cameras[0].centre if len(cameras) == 1 else None)

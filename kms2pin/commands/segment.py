@@ -24,17 +24,16 @@ a warning naming where it stopped; a video with no readable frame is an error.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
 from ..errors import InputDataError
-from ..video.io import MASK_NAME, open_frames, write_mask
+from ..video.io import MASK_NAME, open_frames, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, DEFAULT_THRESHOLD, LEARN_FROM, METHODS, SegmentParams, _segment_u8
+from ._common import count, in_range, positive, positive_count
 
 NAME = "segment"
 HELP = "video (or image folder) -> figure-ground masks by adaptive background subtraction"
-_MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
 
 
 def add_lighting_arguments(p: argparse.ArgumentParser, prefix: str = "") -> None:
@@ -43,7 +42,7 @@ def add_lighting_arguments(p: argparse.ArgumentParser, prefix: str = "") -> None
                    help=f"{prefix}no shadow detection: pixels that are a darker copy of the background stay foreground "
                         "(default: they are shadows, i.e. background; turn it off when the subject's colours are "
                         "darker shades of the background's, e.g. light grey clothes before a white wall)")
-    p.add_argument("--shadow-threshold", type=float, default=0.5, metavar="T",
+    p.add_argument("--shadow-threshold", type=in_range(0.0, 1.0, lo_open=True, hi_open=True), default=0.5, metavar="T",
                    help=f"{prefix}a shadow keeps at least this fraction of the background's brightness (default "
                         "0.5, OpenCV's; 0.3 also takes deeper cast shadows for background, and with them subjects "
                         "in dark shades of the background's colours)")
@@ -58,17 +57,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder for frame_NNNNN.png masks")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"OpenCV background model (default: {DEFAULT_METHOD})")
-    p.add_argument("--learn-frames", type=int, default=30, metavar="N",
+    p.add_argument("--learn-frames", type=count, default=30, metavar="N",
                    help="frames that train the background model (default: 30; 0: learn online only)")
     p.add_argument("--learn-from", choices=LEARN_FROM, default="spread",
                    help="'spread': learning frames spread over the whole video (default); 'start': the first ones")
-    p.add_argument("--threshold", type=float, metavar="T",
+    p.add_argument("--threshold", type=positive, metavar="T",
                    help="foreground threshold: MOG2 varThreshold (squared Mahalanobis distance, default "
                         f"{DEFAULT_THRESHOLD['mog2']:g}) or KNN dist2Threshold (squared distance in grey levels, "
                         f"default {DEFAULT_THRESHOLD['knn']:g}); larger = fewer foreground pixels")
-    p.add_argument("--history", type=int, default=500, metavar="N",
+    p.add_argument("--history", type=positive_count, default=500, metavar="N",
                    help="adaptation time scale in frames; learning rate 1/N after learning (default: 500)")
-    p.add_argument("--min-blob-area", type=int, metavar="PX",
+    p.add_argument("--min-blob-area", type=count, metavar="PX",
                    help="drop foreground blobs smaller than this (default: 0.1%% of the image)")
     p.add_argument("--keep-holes", action="store_true", help="do not fill holes inside the silhouette")
     add_lighting_arguments(p)
@@ -89,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
         refine_edges=not args.no_edge_refinement, compensate_gain=not args.no_gain_compensation,
     )
     params.check()
+    if args.no_shadows and args.shadow_threshold != 0.5:
+        print("note: --shadow-threshold sets the shadow test; with --no-shadows it does nothing", file=sys.stderr)
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
     out = Path(args.output)
     try:
@@ -108,11 +109,9 @@ def run(args: argparse.Namespace) -> int:
             bar.update(1)
     finally:
         bar.close()
-    stale = [p for p in out.iterdir() if (m := _MASK_RE.match(p.name)) and int(m.group(1)) >= n]
-    for p in stale:
-        p.unlink()
+    stale = remove_masks_from(out, n)
     if source.stopped_early:
         print(f"kms2pin segment: warning: {source.stopped_early}; masks written for those frames", file=sys.stderr)
-    extra = f" (removed {len(stale)} older mask(s) beyond the sequence)" if stale else ""
+    extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
     print(f"{out}: {n} masks {MASK_NAME.format(0)}..{MASK_NAME.format(n - 1)}{extra}")
     return 0

@@ -22,8 +22,8 @@ from ..ecm.synth import synthesize
 from ..ecm.tracker import Trajectory
 from ..errors import Kms2pinError
 from ..robot import Robot
-from ..video.io import write_png_atomically
-from ._common import add_spec_argument, read_model
+from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
+from ._common import add_spec_argument, count, in_range, positive_count, read_model
 
 NAME = "synth"
 HELP = "render synthetic silhouette masks of a moving model (for track / evaluate)"
@@ -32,24 +32,18 @@ HELP = "render synthetic silhouette masks of a moving model (for track / evaluat
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_spec_argument(p)
     p.add_argument("--motion", choices=MOTIONS, default="walk", help="motion (default: walk)")
-    p.add_argument("--frames", type=int, default=60, help="number of frames (default: 60)")
+    p.add_argument("--frames", type=positive_count, default=60, help="number of frames (default: 60)")
     p.add_argument("--cameras", metavar="CAMS.json", help="camera list (default: one Camera.default())")
     p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
-    p.add_argument("--noise", type=float, default=0.0, metavar="LEVEL", help="noise level, e.g. 0.05 (default 0)")
-    p.add_argument("--size-mismatch", type=float, default=0.0, metavar="FRAC",
+    p.add_argument("--noise", type=in_range(0.0, 1.0), default=0.0, metavar="LEVEL", help="noise level, e.g. 0.05 (default 0)")
+    p.add_argument("--size-mismatch", type=in_range(0.0, 1.0, hi_open=True), default=0.0, metavar="FRAC",
                    help="render body sizes off by up to FRAC (e.g. 0.1)")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--seed", type=count, default=0, help="random seed (default: 0)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.frames < 1:
-        raise Kms2pinError(f"--frames must be at least 1, not {args.frames}")
-    if not 0.0 <= args.noise <= 1.0:
-        raise Kms2pinError(f"--noise must be in [0, 1], not {args.noise}")
-    if not 0.0 <= args.size_mismatch < 1.0:
-        raise Kms2pinError(f"--size-mismatch must be in [0, 1), not {args.size_mismatch}")
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
     cameras = Camera.list_from_json(args.cameras) if args.cameras else [Camera.default()]
@@ -67,8 +61,10 @@ def run(args: argparse.Namespace) -> int:
         for f, masks in synthesize(robot, motion, cameras, noise=args.noise, size_mismatch=args.size_mismatch,
                                    rng=rng):
             for d, m in zip(dirs, masks):
-                write_png_atomically(d / f"frame_{f:05d}.png", m.astype(np.uint8) * 255)
+                write_png_atomically(d / MASK_NAME.format(f), m.astype(np.uint8) * 255)
+        stale = sum(remove_masks_from(d, args.frames) for d in dirs)
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
-    print(f"{out}: {args.frames} frames x {len(cameras)} camera(s)")
+    extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
+    print(f"{out}: {args.frames} frames x {len(cameras)} camera(s){extra}")
     return 0

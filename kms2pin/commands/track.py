@@ -35,7 +35,8 @@ from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_coni
 from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
-from ._common import add_spec_argument, read_model
+from ..video.io import remove_masks_from
+from ._common import add_spec_argument, count, non_negative, positive, read_model
 from .segment import add_lighting_arguments
 
 NAME = "track"
@@ -62,13 +63,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="segmentation of --video (default mog2)")
     add_lighting_arguments(p, prefix="segmentation of --video: ")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of overlay and animation (default 30)")
+    p.add_argument("--fps", type=positive, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
     p.add_argument("--no-size-calibration", action="store_true",
                    help="keep the spec's body sizes (default: measure them on the first frame, whose "
                         "pose is taken to be the rest pose or --init POSE, and refine them as the "
                         "subject turns; not with --init auto)")
-    p.add_argument("--size-every", type=_count, default=None, metavar="N",
+    p.add_argument("--size-every", type=count, default=None, metavar="N",
                    help="refine the measured body sizes on every N-th frame (default 5; 0: keep the first "
                         "frame's, e.g. when the masks have systematic errors, such as deep shadows, that the "
                         "sizes would take up)")
@@ -84,7 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "when a frame's fit falls behind the running fit (an arm stuck on the wrong side of "
                         "the trunk, a finger folded the wrong way), nor, with one camera, try twin limbs "
                         "exchanged after they cross")
-    p.add_argument("--limb-search-drop", type=_non_negative, default=None, metavar="D",
+    p.add_argument("--limb-search-drop", type=non_negative, default=None, metavar="D",
                    help="run the limb search on a frame whose fit (IoU) falls more than D below the "
                         "running fit (default 0.015 with --masks, 0.03 with --video: on segmented masks "
                         "the fit is noisy, and 0.03 tracked as well at 1.5-2.5x the frames/s; use 0.03 "
@@ -93,7 +94,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with one camera, do not track the limb search's best candidate beside the pose "
                         "when the fit falls a little (by 0.005; it becomes the pose once it fits better "
                         "over the frames that follow)")
-    p.add_argument("--tol-px", type=_non_negative, default=None, metavar="PX",
+    p.add_argument("--tol-px", type=non_negative, default=None, metavar="PX",
                    help="end a frame's iterations once no body's outline moves more than PX pixels "
                         "(default 0.25; 0: only once the joints stop moving: on the one-camera hand, "
                         "fifteen of twenty seeds ended within 1.5x of their start against twelve, at "
@@ -101,17 +102,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--binned-hypotheses", action="store_true",
                    help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")
-    p.add_argument("--depth-prior", type=_non_negative, default=0.0, metavar="K",
+    p.add_argument("--depth-prior", type=non_negative, default=0.0, metavar="K",
                    help="a spring holding the root's distance along each camera's ray at each frame's "
                         "prediction, K times the root's stiffness (default 0: off; with one camera 0.02 "
                         "keeps a lost track from sliding towards the camera)")
-    p.add_argument("--upright", type=_non_negative, default=0.0, metavar="K",
+    p.add_argument("--upright", type=non_negative, default=0.0, metavar="K",
                    help="a spring holding the root's tilt from the vertical (--up) at the first frame's, "
                         "K times the root's rotational stiffness; it turns freely about the vertical "
                         "(default 0: off; 0.1 for people walking, seen by one camera)")
     p.add_argument("--up", type=float, nargs=3, default=(0.0, 1.0, 0.0), metavar=("X", "Y", "Z"),
                    help="the world's vertical for --upright (default 0 1 0)")
-    p.add_argument("--rest-prior", type=_non_negative, default=0.0, metavar="K",
+    p.add_argument("--rest-prior", type=non_negative, default=0.0, metavar="K",
                    help="a spring pulling every joint angle towards the spec's rest pose, K times the "
                         "joints' mean stiffness (default 0: off; 0.01 for people walking, seen by one "
                         "camera: it holds the joints the images do not fix, e.g. a hidden arm's)")
@@ -119,31 +120,64 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got '{text}'")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not value >= 0.0:  # also rejects nan
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
-    return value
-
-
 def _up_vector(xyz) -> np.ndarray:
     up = np.asarray(xyz, dtype=float)
     if not (np.all(np.isfinite(up)) and np.linalg.norm(up) > 0.0):
         raise UsageError(f"--up: expected a finite, non-zero vector, got {' '.join(map(str, xyz))}")
     return up
+
+
+def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
+    """The cameras of ``--camera`` files, in order (a file may hold one camera or a list,
+    as ``synth`` and ``camera`` write them), and a name for each in messages."""
+    cameras: list[Camera] = []
+    names: list[str] = []
+    for path in paths:
+        cams = Camera.list_from_json(path)
+        cameras += cams
+        names += [path] if len(cams) == 1 else [f"{path}[{i}]" for i in range(len(cams))]
+    return cameras, names
+
+
+_OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png")
+
+
+def _remove_earlier_outputs(out: Path, cameras: int, video_mode: bool) -> int:
+    """Delete what an earlier run left in ``out`` that this one writes (so that the folder
+    never mixes two runs' files); returns how many files."""
+    removed = 0
+    for name in _OUTPUTS:
+        if (out / name).is_file():
+            (out / name).unlink()
+            removed += 1
+    if video_mode:  # this run writes OUT/masks/camK from frame 0 on
+        for d in sorted((out / "masks").glob("cam*")):
+            removed += remove_masks_from(d, 0)
+    return removed
+
+
+_PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def check_masks(per_cam: list[dict[int, Path]], numbers: list[int], cameras: list[Camera]) -> None:
+    """Before anything is written: every mask's size against its camera, from its PNG
+    header (a file that is not a PNG is decoded instead)."""
+    for pc, cam in zip(per_cam, cameras):
+        for f in numbers:
+            path = pc[f]
+            try:
+                with open(path, "rb") as fh:
+                    head = fh.read(24)
+            except OSError as err:
+                raise InputDataError(f"{path}: frame {f}: cannot read: {err.strerror or err}") from None
+            if head[:8] == _PNG and head[12:16] == b"IHDR":
+                w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+                if (h, w) != cam.shape:
+                    name = f" {cam.name}" if cam.name else ""
+                    raise InputDataError(f"{path}: frame {f}: mask is {w}x{h} but camera{name} is "
+                                         f"{cam.width}x{cam.height}")
+            else:
+                read_mask(path, f, cam)
 
 
 def _frames_in(folder: Path) -> dict[int, Path]:
@@ -275,17 +309,24 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     out = Path(args.output)
     video_mode = bool(args.video)
+    if not video_mode and (args.method != "mog2" or args.no_shadows or args.shadow_threshold != 0.5
+                           or args.no_gain_compensation):
+        print("note: --method, --no-shadows, --shadow-threshold and --no-gain-compensation set the segmentation "
+              "of --video; with --masks they do nothing", file=sys.stderr)
+    if args.no_size_calibration and args.size_every is not None:
+        print("note: --size-every refines the measured sizes; with --no-size-calibration it does nothing",
+              file=sys.stderr)
     if video_mode:
         if not args.camera:
             raise InputDataError("--video needs the cameras: give one --camera CAM.json per --video, in order")
-        cameras = [Camera.from_json(c) for c in args.camera]
+        cameras, camera_names = _load_cameras(args.camera)
         for v in args.video:
             if not Path(v).exists():
                 raise FileNotFoundError(2, "no such file", v)
         from ..video.io import write_mask
         from ..video.track_video import segment_videos
 
-        per_cam_masks, notes = segment_videos(args.video, cameras, list(args.camera), method=args.method,
+        per_cam_masks, notes = segment_videos(args.video, cameras, camera_names, method=args.method,
                                               detect_shadows=not args.no_shadows,
                                               shadow_threshold=args.shadow_threshold,
                                               compensate_gain=not args.no_gain_compensation)
@@ -293,6 +334,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"note: {note}", file=sys.stderr)
         numbers = list(range(len(per_cam_masks[0])))
         masks_dir = out / "masks"
+        removed = _remove_earlier_outputs(out, len(cameras), video_mode)
         try:
             for c, ms in enumerate(per_cam_masks):
                 d = masks_dir / f"cam{c}"
@@ -310,12 +352,13 @@ def run(args: argparse.Namespace) -> int:
         if not masks_dir.is_dir():
             raise FileNotFoundError(2, "no such folder", str(masks_dir))
         if args.camera:
-            cameras = [Camera.from_json(c) for c in args.camera]
+            cameras = _load_cameras(args.camera)[0]
         elif (masks_dir / "cameras.json").is_file():
             cameras = Camera.list_from_json(masks_dir / "cameras.json")
         else:
             raise InputDataError(f"{masks_dir}: no cameras.json; give the cameras with --camera CAM.json")
         numbers, per_cam = find_frames(masks_dir, len(cameras))
+        check_masks(per_cam, numbers, cameras)
         frame_names = [", ".join(str(pc[f]) for pc in per_cam) for f in numbers]
 
         def load(k: int, _pc=per_cam):
@@ -333,6 +376,12 @@ def run(args: argparse.Namespace) -> int:
     init_fit = None
     if auto:
         q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
+    elif not any(any(m.any() for m in load(k)) for k in range(len(numbers))):  # stops at the first non-empty
+        raise InputDataError(f"{masks_dir}: every mask is empty: nothing to track")
+    if not video_mode:
+        removed = _remove_earlier_outputs(out, len(cameras), video_mode)
+    if removed:
+        print(f"note: {out}: removed {removed} file(s) of an earlier run", file=sys.stderr)
     options = dict(SEGMENTED_MASKS) if video_mode else {}  # else Tracker's own defaults
     if args.size_every is not None:
         options["size_every"] = args.size_every
@@ -364,6 +413,7 @@ def run(args: argparse.Namespace) -> int:
             "binned_hypotheses": tracker.binned_hypotheses,
             "depth_prior": tracker.depth_prior,
             "upright": tracker.upright, "up": tracker.up.tolist(), "rest_prior": tracker.rest_prior,
+            "complete": False,  # set once every frame is tracked (kms2pin evaluate warns otherwise)
         }
         if video_mode:
             meta["videos"] = [str(v) for v in args.video]
@@ -397,8 +447,8 @@ def run(args: argparse.Namespace) -> int:
                 names = frame_names[k]
                 r = tracker.step(masks, source=f"{names}: frame {frame}")
                 if "empty mask" in r.flags:
-                    print(f"note: frame {frame}: empty mask ({names}); pose kept from the previous frame",
-                          file=sys.stderr)
+                    kept = "the previous frame's pose kept" if k else "the initial pose kept"
+                    print(f"note: frame {frame}: empty mask ({names}); {kept}", file=sys.stderr)
                 if reacquire is not None:
                     tracker, r, note = reacquire.update(tracker, r, masks, source=f"{names}: frame {frame}")
                     if note:
@@ -414,6 +464,10 @@ def run(args: argparse.Namespace) -> int:
                     video.write(img)
     except KeyboardInterrupt:
         interrupted = True
+    except Kms2pinError:
+        done = f"up to frame {numbers[len(qs) - 1]}" if qs else "empty (no frame tracked)"
+        print(f"kms2pin track: stopped at frame {numbers[len(qs)]}; outputs in {out} are {done}", file=sys.stderr)
+        raise
     finally:
         if video is not None:
             video.release()
@@ -438,6 +492,11 @@ def run(args: argparse.Namespace) -> int:
             write_animation_html(robot, np.array(qs), args.fps, out / "animation.html")
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
+    meta["complete"] = True
+    try:
+        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+    except OSError as err:
+        raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
     fits = np.array([r.fit for r in results])
     poor = [numbers[k] for k, r in enumerate(results) if any(f.startswith("poor fit") for f in r.flags)]
     if poor:

@@ -313,7 +313,8 @@ class Camera:
         """Read one camera (a JSON object) from ``path``."""
         data = _load_json(path)
         if isinstance(data, list):
-            raise CameraError(f"{path}: holds a list of {len(data)} cameras; use Camera.list_from_json")
+            n = len(data)
+            raise CameraError(f"{path}: holds a list of {n} camera{'' if n == 1 else 's'}, not a single camera")
         return _parse_camera(data, str(path))
 
     @classmethod
@@ -337,9 +338,11 @@ def _intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
 
 def _load_json(path: str | Path) -> Any:
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding="utf-8")
     except OSError as e:
         raise CameraError(f"{path}: cannot read camera file: {e.strerror or e}") from e
+    except UnicodeDecodeError:
+        raise CameraError(f"{path}: not a text (JSON) file") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:

@@ -17,7 +17,10 @@ def evaluate(
 
     Revolute angle errors wrap to (-180°, 180°] (a tracked angle 360° off is exact).
 
-    Frames are compared in order; the shorter trajectory sets the count.
+    Frames are compared in order; when the counts differ, the first ``frames`` (the
+    shorter trajectory's count) are compared, silently: ``tracked_frames`` and
+    ``truth_frames`` in the result give both counts for a caller to warn about.
+    Raises :class:`InputDataError` when either trajectory is empty.
 
     ``camera_centre`` (one camera's centre, world frame): also split each body's centre
     error into its part along the ray from the camera through the body's true centre
@@ -29,7 +32,8 @@ def evaluate(
     """
     n = min(len(tracked), len(truth))
     if n == 0:
-        raise InputDataError("nothing to evaluate: a trajectory is empty")
+        which = "the tracked trajectory has" if len(truth) else "the true trajectory has" if len(tracked) else "both trajectories have"
+        raise InputDataError(f"nothing to evaluate: {which} no frames")
     model = robot.model
     d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)]).reshape(n, model.nv)
     # a revolute angle is a point on the circle: compare modulo 2π, in (-π, π]
@@ -70,6 +74,8 @@ def evaluate(
         }
     return {
         "frames": n,
+        "tracked_frames": len(tracked),
+        "truth_frames": len(truth),
         "joint_rmse_deg": joints,
         "revolute_rmse_deg": float(np.sqrt(np.mean(rev**2))) if len(rev) else 0.0,
         "mean_centre_error_pct": float(per_frame.mean()),

@@ -116,15 +116,25 @@ class Trajectory:
 
     @classmethod
     def from_csv(cls, robot: Robot, path: str | os.PathLike) -> Trajectory:
-        """Read a trajectory CSV (as written by :meth:`to_csv` or ``kms2pin synth``)."""
+        """Read a trajectory CSV (as written by :meth:`to_csv` or ``kms2pin synth``).
+
+        A file with only the header gives an empty trajectory.  Raises
+        :class:`InputDataError` naming the file, and the line and column for a bad
+        cell (every joint coordinate must be a finite number).
+        """
         try:
-            with open(path, newline="") as f:
-                rows = list(csv.reader(f))
+            with open(path, newline="", encoding="utf-8-sig") as f:
+                reader = csv.reader(f)
+                rows = [(reader.line_num, row) for row in reader]
         except OSError as err:
             raise InputDataError(f"{path}: cannot read: {err.strerror}") from None
+        except UnicodeDecodeError:
+            raise InputDataError(f"{path}: not a text (CSV) file") from None
+        except csv.Error as err:
+            raise InputDataError(f"{path}:{reader.line_num}: not a valid CSV file: {err}") from None
         if not rows:
             raise InputDataError(f"{path}: empty trajectory file")
-        header = rows[0]
+        header = rows[0][1]
         cols = cls.columns(robot)
         missing = [c for c in cols if c not in header]
         if missing:
@@ -134,11 +144,16 @@ class Trajectory:
             )
         idx = [header.index(c) for c in cols]
         q = np.empty((len(rows) - 1, robot.nq))
-        for k, row in enumerate(rows[1:]):
-            try:
-                q[k] = [float(row[i]) for i in idx]
-            except (ValueError, IndexError):
-                raise InputDataError(f"{path}:{k + 2}: malformed row") from None
+        for k, (line, row) in enumerate(rows[1:]):
+            if len(row) <= max(idx):
+                raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
+            for c, (name, i) in enumerate(zip(cols, idx)):
+                try:
+                    q[k, c] = float(row[i])
+                except ValueError:
+                    q[k, c] = np.nan
+                if not np.isfinite(q[k, c]):
+                    raise InputDataError(f"{path}:{line}: column '{name}': {row[i]!r} is not a finite number")
         for jid in range(1, robot.model.njoints):
             j = robot.model.joints[jid]
             if j.nq == 1:

@@ -196,3 +196,17 @@ def write_mask(folder: Path, index: int, mask: np.ndarray) -> Path:
     img = np.where(np.asarray(mask) > 0, 255, 0).astype(np.uint8)
     write_png_atomically(path, img)
     return path
+
+
+_MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
+
+
+def remove_masks_from(folder: Path, first: int) -> int:
+    """Delete ``folder``'s masks numbered ``first`` or more (an earlier, longer run's),
+    so that the folder holds one sequence; returns how many."""
+    if not folder.is_dir():
+        return 0
+    stale = [p for p in folder.iterdir() if (m := _MASK_RE.match(p.name)) and int(m.group(1)) >= first]
+    for p in stale:
+        p.unlink()
+    return len(stale)

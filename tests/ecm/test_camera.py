@@ -270,11 +270,22 @@ def test_a_missing_file_is_a_camera_error_naming_it(tmp_path):
         Camera.from_json(tmp_path / "nothere.json")
 
 
-def test_reading_one_camera_from_a_list_file_points_to_list_from_json(tmp_path):
+def test_reading_one_camera_from_a_list_file_says_the_file_holds_a_list(tmp_path):
+    """The message serves command-line users too: no Python names in it."""
     path = tmp_path / "cams.json"
     path.write_text(json.dumps([_valid(), _valid()]))
-    with pytest.raises(CameraError, match="list_from_json"):
+    with pytest.raises(CameraError) as err:
         Camera.from_json(path)
+    assert str(err.value) == f"{path}: holds a list of 2 cameras, not a single camera"
+
+
+@pytest.mark.parametrize("read", [Camera.from_json, Camera.list_from_json])
+def test_a_binary_file_is_a_camera_error_saying_it_is_not_text(tmp_path, read):
+    path = tmp_path / "frame.png"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
+    with pytest.raises(CameraError) as err:
+        read(path)
+    assert str(err.value) == f"{path}: not a text (JSON) file"
 
 
 def test_an_error_in_a_camera_list_names_the_cameras_index(tmp_path):

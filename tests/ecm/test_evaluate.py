@@ -10,6 +10,7 @@ import pytest
 from kms2pin.ecm.evaluate import evaluate
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.tracker import Trajectory
+from kms2pin.errors import InputDataError
 from kms2pin.robot import load
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
@@ -90,3 +91,67 @@ def test_without_a_camera_there_is_no_depth_split_and_angles_wrap(hand):
     assert "depth_error_pct" not in rep
     assert rep["joint_rmse_deg"]["tip1_joint"] == pytest.approx(0.0, abs=1e-9)
     assert rep["mean_centre_error_pct"] < 1e-9
+
+
+def test_trajectories_of_different_lengths_are_compared_on_the_common_frames(hand):
+    """The shorter one sets ``frames``; both counts are reported for the caller to warn about."""
+    robot, truth = hand
+    rep = evaluate(robot, Trajectory(robot, truth[:25]), Trajectory(robot, truth))
+    assert (rep["frames"], rep["tracked_frames"], rep["truth_frames"]) == (25, 25, 40)
+    assert len(rep["per_frame_centre_error_pct"]) == 25
+    rep = evaluate(robot, Trajectory(robot, truth), Trajectory(robot, truth[:4]))
+    assert (rep["frames"], rep["tracked_frames"], rep["truth_frames"]) == (4, 40, 4)
+
+
+def test_an_empty_trajectory_is_an_error_saying_which(hand):
+    robot, truth = hand
+    with pytest.raises(InputDataError, match="the true trajectory has no frames"):
+        evaluate(robot, Trajectory(robot, truth), Trajectory(robot, truth[:0]))
+    with pytest.raises(InputDataError, match="the tracked trajectory has no frames"):
+        evaluate(robot, Trajectory(robot, truth[:0]), Trajectory(robot, truth))
+
+
+def _csv_with_cell(robot, truth, path, line, column, value):
+    """``truth`` as a trajectory CSV with the cell on (1-based) ``line`` under ``column`` set to ``value``."""
+    Trajectory(robot, truth[:3]).to_csv(path)
+    rows = [r.split(",") for r in path.read_text().splitlines()]
+    rows[line - 1][rows[0].index(column)] = value
+    path.write_text("".join(",".join(r) + "\n" for r in rows))
+
+
+@pytest.mark.parametrize("value", ["nan", "NaN", "inf", "-inf", "1e999", "", "ten"])
+def test_a_csv_cell_that_is_not_a_finite_number_is_reported_with_its_line_and_column(hand, tmp_path, value):
+    robot, truth = hand
+    path = tmp_path / "t.csv"
+    _csv_with_cell(robot, truth, path, 3, "tip1_joint", value)
+    with pytest.raises(InputDataError) as err:
+        Trajectory.from_csv(robot, path)
+    assert str(err.value) == f"{path}:3: column 'tip1_joint': '{value}' is not a finite number"
+
+
+def test_a_short_csv_row_is_reported_with_its_line(hand, tmp_path):
+    robot, truth = hand
+    path = tmp_path / "t.csv"
+    Trajectory(robot, truth[:3]).to_csv(path)
+    lines = path.read_text().splitlines()
+    lines[2] = "1,0.5"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputDataError) as err:
+        Trajectory.from_csv(robot, path)
+    assert str(err.value).startswith(f"{path}:3: malformed row: 2 fields, the header has ")
+
+
+def test_a_binary_csv_is_an_input_data_error_saying_it_is_not_text(hand, tmp_path):
+    robot, _ = hand
+    path = tmp_path / "trajectory.csv"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
+    with pytest.raises(InputDataError) as err:
+        Trajectory.from_csv(robot, path)
+    assert str(err.value) == f"{path}: not a text (CSV) file"
+
+
+def test_a_header_only_csv_is_an_empty_trajectory(hand, tmp_path):
+    robot, truth = hand
+    path = tmp_path / "t.csv"
+    Trajectory(robot, truth[:0]).to_csv(path)
+    assert len(Trajectory.from_csv(robot, path)) == 0

@@ -117,8 +117,10 @@ def test_camera_make_look_at(tmp_path):
 
 def test_camera_make_errors(tmp_path, capsys):
     out = str(tmp_path / "c.json")
-    assert main(["camera", "make", "--width", "320", "--height", "240", "--fov", "190", "-o", out]) == 1
-    assert "field of view" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # a usage error, naming the option
+        main(["camera", "make", "--width", "320", "--height", "240", "--fov", "190", "-o", out])
+    assert exc.value.code == 2
+    assert "argument --fov: expected a number in (0, 180)" in capsys.readouterr().err
     assert main(["camera", "make", "--width", "320", "--height", "240", "--fov", "40",
                  "--position", "0", "0", "0", "--look-at", "0", "3", "0", "-o", out]) == 1
     assert "parallel" in capsys.readouterr().err

@@ -369,8 +369,10 @@ def test_shadow_threshold_takes_a_deep_cast_shadow_for_background(video, tmp_pat
     assert kept[None] > 0.5 and false[None] > 0.1
     assert kept[0.3] < 0.02 and false[0.3] < 0.03 and missed[0.3] < 0.03
     for bad in ("0", "1.2"):
-        assert main(["segment", str(d), "-o", str(tmp_path / "x"), "--no-progress", "--shadow-threshold", bad]) == 1
-        assert "shadow_threshold must be between 0 and 1" in capsys.readouterr().err
+        with pytest.raises(SystemExit) as exc:
+            main(["segment", str(d), "-o", str(tmp_path / "x"), "--no-progress", "--shadow-threshold", bad])
+        assert exc.value.code == 2
+        assert "argument --shadow-threshold: expected a number in (0, 1)" in capsys.readouterr().err
 
 
 @settings(max_examples=40, deadline=None)

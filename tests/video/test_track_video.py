@@ -224,8 +224,10 @@ def test_shadow_threshold_reaches_the_segmentation(tmp_path, capsys):
     args = ["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-progress",
             "--no-video"]
     bad = tmp_path / "bad"
-    assert main([*args, "--shadow-threshold", "1", "-o", str(bad)]) == 1
-    assert "shadow_threshold must be between 0 and 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--shadow-threshold", "1", "-o", str(bad)])
+    assert exc.value.code == 2
+    assert "argument --shadow-threshold: expected a number in (0, 1)" in capsys.readouterr().err
     assert not (bad / "trajectory.csv").exists()
     out = tmp_path / "o"
     assert main([*args, "--shadow-threshold", "0.3", "-o", str(out)]) == 0, capsys.readouterr().err
