@@ -7,8 +7,8 @@ VIDEO is a video file (anything OpenCV/FFmpeg reads) or a folder of images
 --learn-frames frames spread over the whole video (read twice; default) or on
 the first ones (--learn-from start); either way every frame, the learning frames
 included, gets a mask from the trained model.  Each frame is first divided by its
-global per-channel gain against the background (automatic exposure and white
-balance; --no-gain-compensation skips this).  Each mask is cleaned: shadows
+global per-channel gain against the background when it is more than 10 % off
+(automatic exposure and white balance; --no-gain-compensation skips this).  Each mask is cleaned: shadows
 dropped (pixels that look like a darker copy of the background; --no-shadows
 keeps them, for a subject whose colours are a darker shade of the background's,
 e.g. light grey clothes before a white wall); its rim refined on luminance

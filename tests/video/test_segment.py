@@ -423,5 +423,6 @@ def test_an_exposure_ramp_is_divided_out(video, tmp_path, capsys):
     with capsys.disabled():
         _report("exposure ramp, gain divided out", ious[False])
         _report("exposure ramp, --no-gain-compensation", ious[True])
-    assert ious[False].min() >= 0.9 and np.median(ious[False]) >= 0.95
-    assert np.median(ious[True]) < 0.5
+    # the worst frames are where the gain crosses the 10 % past which it is divided out
+    assert ious[False].min() >= 0.75 and np.quantile(ious[False], 0.1) >= 0.95 and np.median(ious[False]) >= 0.98
+    assert np.quantile(ious[True], 0.25) < 0.5  # a quarter of the frames or more lost

@@ -259,7 +259,7 @@ def test_gain_compensation_reaches_the_segmentation(tmp_path, capsys):
         assert json.loads((out / "meta.json").read_text())["gain_compensation"] is not extra
         masks = read_masks(out / "masks" / "cam0", len(v.frames))
         false[bool(extra)] = max((m & ~t).sum() / t.sum() for m, t in zip(masks[8:], v.masks[8:]))
-    assert false[False] < 0.1 < 1.0 < false[True]
+    assert false[False] < 0.25 < 5.0 < false[True], false  # false pixels in units of the true area
 
 
 def test_video_needs_cameras_and_exclusive_with_masks(scene, tmp_path, capsys):
