@@ -444,3 +444,14 @@ def test_options_that_do_nothing_say_so(tmp_path, capsys):
     assert main([*argv, "--shadow-threshold", "0.3", "--no-size-calibration", "--size-every", "3"]) == 0
     err = capsys.readouterr().err
     assert "with --masks they do nothing" in err and "with --no-size-calibration it does nothing" in err
+
+
+def test_a_missing_camera_file_is_a_usage_error_like_a_missing_spec(tmp_path, capsys):
+    masks = tmp_path / "m"
+    assert main(["synth", LOWER, "--frames", "2", "-o", str(masks)]) == 0
+    nothere = str(tmp_path / "nothere.json")
+    assert main(["track", LOWER, "--masks", str(masks), "--camera", nothere, "-o", str(tmp_path / "o")]) == 2
+    assert f"{nothere}: no such file" in capsys.readouterr().err
+    assert main(["synth", LOWER, "--cameras", nothere, "-o", str(tmp_path / "s")]) == 2
+    assert f"{nothere}: no such file" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "s").exists()

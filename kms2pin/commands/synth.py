@@ -46,6 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
+    if args.cameras and not Path(args.cameras).exists():  # a usage error, as for the spec
+        raise FileNotFoundError(2, "no such file", args.cameras)
     cameras = Camera.list_from_json(args.cameras) if args.cameras else [Camera.default()]
     rng = np.random.default_rng(args.seed)
     motion = make_motion(robot, args.motion, args.frames, rng)

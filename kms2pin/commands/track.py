@@ -133,6 +133,8 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
     cameras: list[Camera] = []
     names: list[str] = []
     for path in paths:
+        if not Path(path).exists():  # a usage error, as for the spec and the videos
+            raise FileNotFoundError(2, "no such file", path)
         cams = Camera.list_from_json(path)
         cameras += cams
         names += [path] if len(cams) == 1 else [f"{path}[{i}]" for i in range(len(cams))]
