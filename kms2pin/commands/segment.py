@@ -25,11 +25,20 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 from ..errors import InputDataError
 from ..video.io import MASK_NAME, open_frames, remove_masks_from, write_mask
-from ..video.segmentation import DEFAULT_METHOD, DEFAULT_THRESHOLD, LEARN_FROM, METHODS, SegmentParams, _segment_u8
+from ..video.segmentation import (
+    DEFAULT_METHOD,
+    DEFAULT_THRESHOLD,
+    LEARN_FROM,
+    METHODS,
+    SegmentParams,
+    StaticForegroundWarning,
+    _segment_u8,
+)
 from ._common import count, in_range, positive, positive_count
 
 NAME = "segment"
@@ -100,18 +109,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.video}: learning the background from {params.learn_frames} frames ...", file=sys.stderr)
     n = 0
     bar = tqdm(total=source.len_hint, unit="frame", desc="segment", disable=args.no_progress, file=sys.stderr)
-    try:
+    with warnings.catch_warnings(record=True) as found, bar:
+        warnings.simplefilter("always", StaticForegroundWarning)
         for n, mask in enumerate(_segment_u8(source, params), start=1):
             try:
                 write_mask(out, n - 1, mask)
             except OSError as e:
                 raise InputDataError(f"{out}: cannot write masks: {e.strerror or e}") from None
             bar.update(1)
-    finally:
-        bar.close()
     stale = remove_masks_from(out, n)
     if source.stopped_early:
         print(f"kms2pin segment: warning: {source.stopped_early}; masks written for those frames", file=sys.stderr)
+    for w in found:
+        if issubclass(w.category, StaticForegroundWarning):
+            print(f"kms2pin segment: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
     print(f"{out}: {n} masks {MASK_NAME.format(0)}..{MASK_NAME.format(n - 1)}{extra}")
     return 0

@@ -144,17 +144,19 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png")
 
 
-def _remove_earlier_outputs(out: Path, cameras: int, video_mode: bool) -> int:
-    """Delete what an earlier run left in ``out`` that this one writes (so that the folder
-    never mixes two runs' files); returns how many files."""
+def _remove_earlier_outputs(out: Path, cameras: int, frames: int | None = None) -> int:
+    """Delete what an earlier run left in ``out`` that this one writes or would not
+    overwrite (so that the folder never mixes two runs' files); returns how many files.
+    ``frames``: with --video, the masks this run writes to OUT/masks/camK."""
     removed = 0
     for name in _OUTPUTS:
         if (out / name).is_file():
             (out / name).unlink()
             removed += 1
-    if video_mode:  # this run writes OUT/masks/camK from frame 0 on
+    if frames is not None:
         for d in sorted((out / "masks").glob("cam*")):
-            removed += remove_masks_from(d, 0)
+            k = d.name[3:]
+            removed += remove_masks_from(d, frames if k.isdigit() and int(k) < cameras else 0)
     return removed
 
 
@@ -336,7 +338,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"note: {note}", file=sys.stderr)
         numbers = list(range(len(per_cam_masks[0])))
         masks_dir = out / "masks"
-        removed = _remove_earlier_outputs(out, len(cameras), video_mode)
+        removed = _remove_earlier_outputs(out, len(cameras), len(numbers))
         try:
             for c, ms in enumerate(per_cam_masks):
                 d = masks_dir / f"cam{c}"
@@ -381,7 +383,7 @@ def run(args: argparse.Namespace) -> int:
     elif not any(any(m.any() for m in load(k)) for k in range(len(numbers))):  # stops at the first non-empty
         raise InputDataError(f"{masks_dir}: every mask is empty: nothing to track")
     if not video_mode:
-        removed = _remove_earlier_outputs(out, len(cameras), video_mode)
+        removed = _remove_earlier_outputs(out, len(cameras))
     if removed:
         print(f"note: {out}: removed {removed} file(s) of an earlier run", file=sys.stderr)
     options = dict(SEGMENTED_MASKS) if video_mode else {}  # else Tracker's own defaults
@@ -504,6 +506,10 @@ def run(args: argparse.Namespace) -> int:
     if poor:
         print(f"note: {len(poor)} frame(s) fit the masks poorly (IoU < {tracker.poor_fit:g}), the first at frame "
               f"{poor[0]}: the track is probably lost there (flag 'poor fit' in trajectory.csv)", file=sys.stderr)
+        if video_mode:
+            print(f"note: if the masks in {masks_dir} miss parts of the subject, the background model learnt them "
+                  "(a subject that stands still while most of the video is taken); `kms2pin segment` with "
+                  "--learn-frames / --learn-from, then track --masks, can do better", file=sys.stderr)
     print(f"{out}: {len(qs)} frames tracked; mean fit (IoU) {fits.mean():.3f}, worst {fits.min():.3f} "
           f"(frame {numbers[int(fits.argmin())]})")
     return 0

@@ -13,13 +13,14 @@ from kms2pin.video.calibration import (
     undistort_mask,
 )
 from kms2pin.video.io import FrameSource, TruncatedVideoWarning, list_images, open_frames, read_frames, write_mask
-from kms2pin.video.segmentation import METHODS, SegmentParams, segment_frames
+from kms2pin.video.segmentation import METHODS, SegmentParams, StaticForegroundWarning, segment_frames
 
 __all__ = [
     "METHODS",
     "CalibrationResult",
     "FrameSource",
     "SegmentParams",
+    "StaticForegroundWarning",
     "TruncatedVideoWarning",
     "calibrate_chessboard",
     "find_chessboard",

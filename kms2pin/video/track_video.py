@@ -10,6 +10,7 @@ is used up to its last good frame - both with a note saying so.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import numpy as np
 from ..ecm.camera import Camera
 from ..errors import InputDataError
 from .io import open_frames
-from .segmentation import segment_frames
+from .segmentation import StaticForegroundWarning, segment_frames
 
 
 def frame_size(path: str | os.PathLike) -> tuple[int, int]:
@@ -62,7 +63,14 @@ def segment_videos(
     notes: list[str] = []
     for v in videos:
         src = open_frames(v)
-        masks = list(segment_frames(src, method=method, **segment_kw))
+        with warnings.catch_warnings(record=True) as found:
+            warnings.simplefilter("always", StaticForegroundWarning)
+            masks = list(segment_frames(src, method=method, **segment_kw))
+        for w in found:
+            if issubclass(w.category, StaticForegroundWarning):
+                notes.append(f"{v}: {w.message}")
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         if src.stopped_early:
             notes.append(f"{src.stopped_early}; tracking the {len(masks)} frame(s) read")
         per_cam.append(masks)

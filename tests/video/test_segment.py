@@ -15,7 +15,7 @@ from kms2pin.cli import main
 from kms2pin.ecm.camera import Camera
 from kms2pin.errors import InputDataError
 from kms2pin.robot import load
-from kms2pin.video import TruncatedVideoWarning, open_frames, read_frames, segment_frames
+from kms2pin.video import StaticForegroundWarning, TruncatedVideoWarning, open_frames, read_frames, segment_frames
 from kms2pin.video.segmentation import (
     apply_gains,
     bootstrap_frames,
@@ -426,3 +426,28 @@ def test_an_exposure_ramp_is_divided_out(video, tmp_path, capsys):
     # the worst frames are where the gain crosses the 10 % past which it is divided out
     assert ious[False].min() >= 0.75 and np.quantile(ious[False], 0.1) >= 0.95 and np.median(ious[False]) >= 0.98
     assert np.quantile(ious[True], 0.25) < 0.5  # a quarter of the frames or more lost
+
+
+def test_a_part_of_the_scene_the_model_never_learnt_is_warned_about(video, tmp_path, capsys):
+    """A box stands in the corner while the background is learnt (the first four frames)
+    and is then taken away: the floor behind it is foreground in every later frame (a
+    ghost), and `segment` warns, naming where.  The clip as rendered, learning from
+    frames spread over it, gives no warning."""
+    d = tmp_path / "frames"
+    d.mkdir()
+    for k, f in enumerate(video.frames):
+        g = f.copy()
+        if k < 4:
+            g[10:50, 250:300] = (40, 200, 220)  # 50x40 px around x=275, y=30
+        cv2.imwrite(str(d / f"img{k:03d}.png"), g)
+    out = tmp_path / "m"
+    assert main(["segment", str(d), "-o", str(out), "--no-progress", "--learn-from", "start", "--learn-frames", "4"]) == 0
+    err = capsys.readouterr().err
+    # the box's ghost, and the walker's: it stood in the first four frames too
+    assert "pixels around x=275, y=30 (50x40)" in err and "foreground in 90% or more of the 60 frames" in err
+    assert main(["segment", str(d), "-o", str(tmp_path / "m2"), "--no-progress"]) == 0  # spread: the box is rare
+    assert "foreground in 90%" not in capsys.readouterr().err
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StaticForegroundWarning)
+        masks = list(segment_frames(video.frames))  # the clip as rendered
+    assert len(masks) == N

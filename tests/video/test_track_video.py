@@ -296,3 +296,25 @@ def test_one_camera_video_waits_for_the_running_fit_before_searching_or_switchin
     assert not any(w in early for w in ("switched to", "the other way", "back at rest")), early
     rep = evaluate(robot, Trajectory.from_csv(robot, out / "trajectory.csv"), Trajectory(robot, truth))
     assert rep["mean_centre_error_pct"] < 3.0 and rep["worst_frame_error_pct"] < 10.0
+
+
+def test_a_shorter_video_into_the_same_folder_leaves_only_its_own_masks(tmp_path, capsys):
+    robot = load(str(LOWER), root="free")
+    cam = Camera.default()
+    v = walking_video(robot, cam, frames=16, seed=2)
+    long, short = tmp_path / "long", tmp_path / "short"
+    long.mkdir()
+    short.mkdir()
+    for i, f in enumerate(v.frames):
+        cv2.imwrite(str(long / f"f{i:02d}.png"), f)
+        if i < 12:
+            cv2.imwrite(str(short / f"f{i:02d}.png"), f)
+    cam.to_json(tmp_path / "cam.json")
+    out = tmp_path / "o"
+    for video in (long, short):
+        assert main(["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"),
+                     "--no-progress", "--no-video", "-o", str(out)]) == 0, capsys.readouterr().err
+    # frames 12-15's masks, trajectory.csv, poses.npz, animation.html and joint_angles.png
+    assert f"note: {out}: removed 8 file(s) of an earlier run" in capsys.readouterr().err
+    assert sorted(p.name for p in (out / "masks" / "cam0").iterdir()) == [f"frame_{k:05d}.png" for k in range(12)]
+    assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 12
