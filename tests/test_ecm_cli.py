@@ -443,7 +443,7 @@ def test_options_that_do_nothing_say_so(tmp_path, capsys):
     argv = ["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]
     assert main([*argv, "--shadow-threshold", "0.3", "--no-size-calibration", "--size-every", "3"]) == 0
     err = capsys.readouterr().err
-    assert "with --masks they do nothing" in err and "with --no-size-calibration it does nothing" in err
+    assert "with --masks they do nothing" in err and "with --no-size-calibration none are measured" in err
 
 
 def test_a_missing_camera_file_is_a_usage_error_like_a_missing_spec(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""Make a camera file for `kms2pin synth/track --cameras`.
+"""Make a camera file for `kms2pin synth --cameras` / `kms2pin track --camera`.
 
 `kms2pin camera make` builds a pinhole camera from the image size and the vertical
 field of view, placed at --position and looking at --look-at (default: the thesis

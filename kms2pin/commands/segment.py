@@ -17,6 +17,10 @@ e.g. light grey clothes before a white wall); its rim refined on luminance
 kernels, blobs smaller than --min-blob-area removed, holes inside the
 silhouette filled.
 
+A warning names any region that is foreground in 90 % or more of the frames (20
+or more): a part of the scene the background model never learnt (the subject
+stood there while it learnt, the camera moved).
+
 A truncated or corrupt video is segmented up to the last readable frame, with
 a warning naming where it stopped; a video with no readable frame is an error.
 """

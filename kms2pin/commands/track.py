@@ -9,7 +9,7 @@ writes OUT/joint_angles.png.  Writes to OUT:
 trajectory.csv (joint angles in degrees, one row per frame, appended as it
 goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
-is available), model.kms and meta.json (for `kms2pin evaluate`).
+is available), model.kms, meta.json and cameras.json (for `kms2pin evaluate`).
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
@@ -40,7 +40,7 @@ from ._common import add_spec_argument, count, non_negative, positive, read_mode
 from .segment import add_lighting_arguments
 
 NAME = "track"
-HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4"
+HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4, animation.html"
 
 _NUM = re.compile(r"(\d+)(?=\.png$)", re.IGNORECASE)
 
@@ -100,7 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "fifteen of twenty seeds ended within 1.5x of their start against twelve, at "
                         "0.77x the frames/s)")
     p.add_argument("--binned-hypotheses", action="store_true",
-                   help="track the mirror and swapped hypotheses on the masks binned 2x2 (about 1.3x "
+                   help="track the one-camera alternative hypotheses (mirror, swapped, limb search) on the masks binned 2x2 (about 1.3x "
                         "the frames/s with one camera, at some cost in accuracy)")
     p.add_argument("--depth-prior", type=non_negative, default=0.0, metavar="K",
                    help="a spring holding the root's distance along each camera's ray at each frame's "
@@ -317,9 +317,6 @@ def run(args: argparse.Namespace) -> int:
                            or args.no_gain_compensation):
         print("note: --method, --no-shadows, --shadow-threshold and --no-gain-compensation set the segmentation "
               "of --video; with --masks they do nothing", file=sys.stderr)
-    if args.no_size_calibration and args.size_every is not None:
-        print("note: --size-every refines the measured sizes; with --no-size-calibration it does nothing",
-              file=sys.stderr)
     if video_mode:
         if not args.camera:
             raise InputDataError("--video needs the cameras: give one --camera CAM.json per --video, in order")
@@ -386,6 +383,10 @@ def run(args: argparse.Namespace) -> int:
         removed = _remove_earlier_outputs(out, len(cameras))
     if removed:
         print(f"note: {out}: removed {removed} file(s) of an earlier run", file=sys.stderr)
+    if (args.no_size_calibration or auto) and args.size_every is not None:
+        why = "--no-size-calibration" if args.no_size_calibration else "the automatic initialization (no --init POSE)"
+        print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
+              file=sys.stderr)
     options = dict(SEGMENTED_MASKS) if video_mode else {}  # else Tracker's own defaults
     if args.size_every is not None:
         options["size_every"] = args.size_every

@@ -232,6 +232,7 @@ class Tracker:
             subject in every frame) it made the full body worse on two clips of three.
             Without that blob it helps two cameras on every clip, a cast shadow or not
             (docs/tracking.md, video); ``--size-every 0`` keeps the first frame's sizes.
+            ``track``'s automatic initialization measures no sizes, so none are refined.
         size_iterations: E-step / size-fit rounds of the calibration.
         mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
             when there is one camera, the root is free and the model has left/right

@@ -106,7 +106,8 @@ Pipeline, per frame:
    after learning from an empty scene, and the masks are right.
 
 With ``learn_frames=0`` the model starts empty and learns online (OpenCV's
-own schedule) - early masks are then poor.
+own schedule) - early masks are then poor, and no gain is compensated (it is
+measured against the learnt background).
 """
 
 from __future__ import annotations
@@ -543,7 +544,8 @@ def segment_frames(
     are the fields of :class:`SegmentParams` (``history``, ``threshold``,
     ``learning_rate``, ``min_blob_area``, ``open_size``, ``close_size``,
     ``fill_holes``, ``detect_shadows``, ``shadow_threshold``, ``bootstrap_diff``, ``mode_tolerance``,
-    ``refine_edges``, ``edge_contrast``).
+    ``refine_edges``, ``edge_contrast``, ``compensate_gain``).  Warns
+    (:class:`StaticForegroundWarning`) of a part of the scene the model never learnt.
     """
     params = SegmentParams(method=method, learn_frames=learn_frames, learn_from=learn_from, **kwargs)
     yield from (m > 0 for m in _segment_u8(frames, params))
