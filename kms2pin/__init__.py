@@ -8,7 +8,16 @@ viewer (:mod:`kms2pin.viewer`).
 
 from __future__ import annotations
 
-from .errors import Kms2pinError, RobotError, SpecError, TargetError
+from .errors import (
+    CameraError,
+    ExportError,
+    InputDataError,
+    Kms2pinError,
+    OptionError,
+    RobotError,
+    SpecError,
+    TargetError,
+)
 from .lang import parse, parse_text
 from .model import Body, BoundVector, Joint, ModelSpec, System
 from .robot import Robot, euler_parameters, load
@@ -19,9 +28,13 @@ __version__ = "0.1.0"
 __all__ = [
     "Body",
     "BoundVector",
+    "CameraError",
+    "ExportError",
+    "InputDataError",
     "Joint",
     "Kms2pinError",
     "ModelSpec",
+    "OptionError",
     "Robot",
     "RobotError",
     "SpecError",

@@ -71,6 +71,10 @@ class CameraError(Kms2pinError):
     """A camera description is invalid (file, field and reason in the message)."""
 
 
+class OptionError(Kms2pinError, ValueError):
+    """An option of the tracker is out of range or of the wrong type (name, value and range in the message)."""
+
+
 class InputDataError(Kms2pinError):
     """Images, masks or videos cannot be used (file and frame in the message)."""
 

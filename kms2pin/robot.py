@@ -2,12 +2,16 @@
 
 ``q`` is always Pinocchio's configuration vector (``model.nq``) in the order of
 ``Robot.joint_names``; with ``root="free"`` its first 7 entries are the root
-free flyer (position, then quaternion x, y, z, w).  Body poses are
-``world_T_body``: the ellipsoid centre with the body's axes (thesis eq. 2.1).
+free flyer: position, then Pinocchio's quaternion (x, y, z, w), scalar LAST.  The
+thesis's Euler parameters (eq. 2.5-2.7), and so :meth:`Robot.maximal_coordinates`
+and :func:`euler_parameters`, put the scalar FIRST: (theta0, theta1, theta2, theta3)
+= (w, x, y, z).  Body poses are ``world_T_body``: the ellipsoid centre with the
+body's axes (thesis eq. 2.1).
 """
 
 from __future__ import annotations
 
+import math
 import os
 from functools import cached_property
 from importlib import resources
@@ -21,6 +25,15 @@ from .model import ModelSpec, System, alignment_matrix, axis_angle_matrix
 from .urdf import to_srdf, to_urdf
 
 ROOTS = ("spec", "free")
+
+#: A free root's quaternion q[3:7] is renormalized when its squared norm is off by more.
+_UNIT_TOL = 1e-12
+#: Below this norm a free root's quaternion is refused as zero (it has no direction).
+_ZERO_NORM = 1e-12
+#: Largest |R R^T - I| entry :func:`euler_parameters` accepts as a rotation.
+_ROTATION_TOL = 1e-6
+_EYE3 = np.eye(3)
+_FREE_FLYER_PARTS = ("x", "y", "z", "quaternion x", "quaternion y", "quaternion z", "quaternion w")
 
 
 def mesh_package_dir() -> str:
@@ -38,13 +51,21 @@ class Robot:
         urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
-        q_rest: the spec's rest configuration (default joint angles).
+        q_rest: the spec's rest configuration (default joint angles), a Pinocchio ``q``.
         lower_limits, upper_limits: (nq,) bounds of ``q`` from the spec's joint limits
             (radians); -inf / +inf where the spec gives none (the free flyer, and every
             joint of the thesis's own models).
+
+    Quaternion order: every ``q`` (and ``q_rest``) is Pinocchio's, so with
+    ``root="free"`` ``q[3:7]`` is the root's quaternion (x, y, z, w), scalar LAST; the
+    thesis's Euler parameters in :meth:`maximal_coordinates` are scalar FIRST
+    (theta0, theta1, theta2, theta3) = (w, x, y, z) (eq. 2.7).  Methods taking ``q``
+    raise RobotError for a wrong shape, a non-finite entry or a zero root quaternion,
+    and use a non-unit root quaternion divided by its norm (as ``pin.integrate`` would
+    give it).
     """
 
-    def __init__(self, spec: ModelSpec, system: System, root: str = "spec"):
+    def __init__(self, spec: ModelSpec, system: System, root: str = "spec") -> None:
         if root not in ROOTS:
             raise RobotError(f"root must be one of {ROOTS}, not {root!r}")
         self.spec = spec
@@ -87,7 +108,10 @@ class Robot:
         return bool(np.isfinite(self.lower_limits).any())
 
     def clamp(self, q: np.ndarray) -> np.ndarray:
-        """``q`` with every limited joint angle clipped into the spec's limits."""
+        """``q`` with every limited joint angle clipped into the spec's limits.
+
+        Pure element-wise clipping: broadcasts over (..., nq) arrays and does not
+        validate (see :meth:`forward` for the checks of a single ``q``)."""
         return np.clip(q, self.lower_limits, self.upper_limits)
 
     def _add_centre_frame(self, body: str) -> int:
@@ -136,31 +160,69 @@ class Robot:
         return self.model.nv
 
     # ------------------------------------------------------------------ kinematics
-    def _check_q(self, q) -> np.ndarray:
+    def _check_q(self, q: np.ndarray) -> np.ndarray:
+        """``q`` as a float (nq,) array, checked once for every method taking a ``q``.
+
+        Raises RobotError for a wrong shape, for the first non-finite coordinate (named
+        with its joint) and for a free root quaternion ``q[3:7]`` (x, y, z, w) of zero
+        norm; a non-unit one is divided by its norm, on a copy.
+        """
         q = np.asarray(q, dtype=float)
         if q.shape != (self.model.nq,):
             raise RobotError(f"q must have shape ({self.model.nq},) for '{self.system.name}', not {q.shape}")
+        if not np.isfinite(q).all():
+            raise RobotError(self._non_finite_message(q))
+        if self.root == "free":
+            n2 = float(q[3:7] @ q[3:7])
+            if abs(n2 - 1.0) > _UNIT_TOL:
+                norm = math.sqrt(n2)
+                if norm < _ZERO_NORM:
+                    raise RobotError(
+                        f"the free root's quaternion q[3:7] = {q[3:7].tolist()} (x, y, z, w; scalar last) of "
+                        f"'{self.system.name}' has zero norm ({norm:.3g}); it must be a non-zero quaternion, "
+                        "e.g. [0, 0, 0, 1] for no rotation"
+                    )
+                q = q.copy()
+                q[3:7] /= norm
         return q
 
-    def forward(self, q) -> None:
-        """Forward kinematics of every frame into :attr:`data` (no Jacobians)."""
+    def _non_finite_message(self, q: np.ndarray) -> str:
+        k = int(np.flatnonzero(~np.isfinite(q))[0])
+        joint = ""
+        for jid in range(1, self.model.njoints):
+            jm = self.model.joints[jid]
+            if jm.idx_q <= k < jm.idx_q + jm.nq:
+                part = f"{_FREE_FLYER_PARTS[k - jm.idx_q]} of " if jm.nq == 7 else ""
+                joint = f" ({part}joint '{self.model.names[jid]}')"
+                break
+        return f"q[{k}]{joint} of '{self.system.name}' is {q[k]}; every coordinate of q must be finite"
+
+    def forward(self, q: np.ndarray) -> None:
+        """Forward kinematics of every frame into :attr:`data` (no Jacobians).
+
+        ``q``: Pinocchio configuration (nq,), radians; a free root's ``q[3:7]`` is the
+        quaternion (x, y, z, w), scalar last.  Raises RobotError for a wrong shape, a
+        non-finite entry or a zero root quaternion (see :class:`Robot`)."""
         pin.framesForwardKinematics(self.model, self.data, self._check_q(q))
 
-    def body_pose(self, q, name: str) -> pin.SE3:
-        """world_T_body of ``name``: ellipsoid centre and body axes (eq. 2.1, 2.14)."""
+    def body_pose(self, q: np.ndarray, name: str) -> pin.SE3:
+        """world_T_body of ``name`` at ``q`` (as in :meth:`forward`): ellipsoid centre and
+        body axes (eq. 2.1, 2.14)."""
         i = self.index(name)
         self.forward(q)
         return pin.SE3(self.data.oMf[self.frame_ids[i]])
 
-    def body_poses(self, q) -> list[pin.SE3]:
-        """world_T_body of every body, in :attr:`bodies` order."""
+    def body_poses(self, q: np.ndarray) -> list[pin.SE3]:
+        """world_T_body of every body at ``q`` (as in :meth:`forward`), in :attr:`bodies` order."""
         self.forward(q)
         return [pin.SE3(self.data.oMf[f]) for f in self.frame_ids]
 
-    def maximal_coordinates(self, q, convention: str = "positive") -> np.ndarray:
+    def maximal_coordinates(self, q: np.ndarray, convention: str = "positive") -> np.ndarray:
         """The thesis's q_i = [mu, theta0, theta1, theta2, theta3] per body (eq. 2.8), (n, 7).
 
-        Euler parameters are scalar first and satisfy eq. 2.7.  They are unique only
+        ``q`` is checked as in :meth:`forward` (a free root's quaternion there is
+        (x, y, z, w), scalar last); the Euler parameters here are scalar FIRST
+        (theta0 = w) and satisfy eq. 2.7.  They are unique only
         up to sign; ``convention="positive"`` takes theta0 >= 0 (continuous except at
         half turns), ``"thesis"`` takes the thesis's rule (§2.2.1): the first nonzero
         of theta1, theta2, theta3 positive.
@@ -170,12 +232,13 @@ class Robot:
         for i, f in enumerate(self.frame_ids):
             M = self.data.oMf[f]
             out[i, :3] = M.translation
-            out[i, 3:] = euler_parameters(M.rotation, convention)
+            out[i, 3:] = _euler_parameters(M.rotation, convention)
         return out
 
-    def body_jacobian(self, q, name: str) -> np.ndarray:
+    def body_jacobian(self, q: np.ndarray, name: str) -> np.ndarray:
         """6 x nv Jacobian of body ``name`` at its ellipsoid centre, world-aligned axes,
-        rows (linear; angular) as in Pinocchio's LOCAL_WORLD_ALIGNED."""
+        rows (linear; angular) as in Pinocchio's LOCAL_WORLD_ALIGNED; ``q`` as in
+        :meth:`forward`."""
         i = self.index(name)
         q = self._check_q(q)
         return pin.computeFrameJacobian(
@@ -183,7 +246,7 @@ class Robot:
         )
 
     def random_configuration(self, rng: np.random.Generator, spread_deg: float = 180.0) -> np.ndarray:
-        """Rest pose with every revolute angle moved uniformly within +-spread_deg."""
+        """Rest pose (a Pinocchio ``q``) with every revolute angle moved uniformly within +-spread_deg."""
         q = self.q_rest.copy()
         start = 7 if self.root == "free" else 0
         q[start:] += np.radians(rng.uniform(-spread_deg, spread_deg, self.model.nq - start))
@@ -222,8 +285,34 @@ class Robot:
 
 
 def euler_parameters(R: np.ndarray, convention: str = "positive") -> np.ndarray:
-    """Unit Euler parameters [theta0, theta1, theta2, theta3] of rotation R (eq. 2.7)."""
-    quat = pin.Quaternion(np.asarray(R))
+    """Unit Euler parameters [theta0, theta1, theta2, theta3] of rotation R (eq. 2.7).
+
+    Scalar FIRST (theta0 = w), unlike Pinocchio's (x, y, z, w) quaternions.  ``R``
+    must be a 3 x 3 rotation: |R R^T - I| <= 1e-6 entry-wise and det R > 0, else
+    RobotError (a reflection such as diag(1, 1, -1) has no Euler parameters).
+    ``convention`` as in :meth:`Robot.maximal_coordinates`.
+    """
+    R = np.asarray(R, dtype=float)
+    if R.shape != (3, 3):
+        raise RobotError(f"R must be a 3 x 3 rotation matrix, not shape {R.shape}")
+    if not np.isfinite(R).all():
+        raise RobotError(f"R must be a rotation matrix, but it is not finite: {R.tolist()}")
+    off = float(np.abs(R @ R.T - _EYE3).max())
+    if off > _ROTATION_TOL:
+        raise RobotError(
+            f"R is not a rotation matrix: R R^T differs from the identity by {off:.3g} "
+            f"(tolerance {_ROTATION_TOL:g})"
+        )
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if det < 0:
+        raise RobotError(f"R is not a rotation matrix: det R = {det:.6g} (a reflection; a rotation has det R = +1)")
+    return _euler_parameters(R, convention)
+
+
+def _euler_parameters(R: np.ndarray, convention: str) -> np.ndarray:
+    """:func:`euler_parameters` of a matrix known to be a rotation (Pinocchio's own)."""
+    quat = pin.Quaternion(R)
     e = np.array([quat.w, quat.x, quat.y, quat.z])
     e /= np.linalg.norm(e)
     if convention == "positive":
@@ -246,7 +335,9 @@ def load(spec: str | os.PathLike | ModelSpec, root: str = "spec", system: str | 
     Args:
         spec: a ``.kms`` path, spec text, or the result of :func:`kms2pin.parse`.
         root: ``"spec"`` keeps the spec's joint to the inertial frame; ``"free"``
-            replaces it by a 6-DoF free flyer.
+            replaces it by a 6-DoF free flyer, the first 7 entries of every ``q``:
+            position, then Pinocchio's quaternion (x, y, z, w), scalar LAST (the
+            thesis's Euler parameters, eq. 2.7, are scalar FIRST).
         system: which rigidBodySystem, when the spec has more than one.
     """
     if isinstance(spec, ModelSpec):

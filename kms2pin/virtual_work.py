@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 import weakref
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from .errors import TargetError, did_you_mean
+from .errors import RobotError, TargetError, did_you_mean
 from .native import ENABLED as _NATIVE_ENABLED
 from .native import kernels as _kernels
 from .robot import Robot
@@ -63,7 +63,7 @@ class StaticUpdateResult:
     message: str = ""
 
 
-def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
+def target_array(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Targets as an (n, 7) array [mu, theta0..3] and an (n,) mask of bodies with springs.
 
     Accepts an (n, 7) array in ``robot.bodies`` order or a mapping body name ->
@@ -120,7 +120,7 @@ def target_array(robot: Robot, targets) -> tuple[np.ndarray, np.ndarray]:
 _UNIT_LO, _UNIT_HI = (1.0 - 1e-6) ** 2, (1.0 + 1e-6) ** 2  # squared norms within 1e-6 of unit
 
 
-def stiffness_array(robot: Robot, stiffness, mask: np.ndarray | None = None) -> np.ndarray:
+def stiffness_array(robot: Robot, stiffness: float | np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """k as an (n, 7) array from a scalar, a per-body (n,) vector or an (n, 7) array."""
     n = len(robot.bodies)
     if isinstance(stiffness, (int, float)) and math.isfinite(stiffness) and stiffness >= 0:
@@ -212,7 +212,7 @@ def _structure(robot: Robot) -> _Structure:
     return s
 
 
-def body_frames(model: pin.Model, data: pin.Data, frames, s: _Structure, native: bool) -> np.ndarray:
+def body_frames(model: pin.Model, data: pin.Data, frames: Sequence[int], s: _Structure, native: bool) -> np.ndarray:
     """(n, 7) [mu, x, y, z, w] of the body frames after a forward pass into ``data``: in C,
     the joint placements (one Pinocchio call for all) times each frame's fixed offset;
     otherwise Pinocchio's own frame placements."""
@@ -330,9 +330,9 @@ _EBASIS_XYZW = _EBASIS.reshape(4, 4, 3)[[1, 2, 3, 0]][:, [1, 2, 3, 0]].reshape(4
 
 def static_update(
     robot: Robot,
-    q,
-    targets,
-    stiffness=1.0,
+    q: np.ndarray,
+    targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray],
+    stiffness: float | np.ndarray = 1.0,
     *,
     max_iter: int = 100,
     tol: float = 1e-9,
@@ -341,8 +341,11 @@ def static_update(
 
     Args:
         robot: the loaded system (``root="spec"`` or ``"free"``).
-        q: primary configuration (Pinocchio ``q``, radians).
-        targets: intermediate bodies, an (n_bodies, 7) array of [mu, theta0..3] in
+        q: primary configuration (Pinocchio ``q``, radians).  With ``root="free"``
+            ``q[3:7]`` is Pinocchio's quaternion (x, y, z, w), scalar LAST; a non-unit
+            one is divided by its norm, a zero one is refused.
+        targets: intermediate bodies, an (n_bodies, 7) array of [mu, theta0..3] (Euler
+            parameters scalar FIRST, eq. 2.7, as :meth:`Robot.maximal_coordinates`) in
             ``robot.bodies`` order, or a mapping body name -> ``pin.SE3`` (bodies left
             out pull with no spring).
         stiffness: k, a scalar, a per-body (n,) vector or an (n, 7) array (eq. 2.33).
@@ -352,20 +355,22 @@ def static_update(
     Returns:
         A :class:`StaticUpdateResult`; a non-converged update is returned, not raised.
 
+    Raises:
+        TargetError: malformed targets or stiffness, or a ``q`` that
+            :class:`Robot`'s methods refuse (wrong shape, non-finite, zero root
+            quaternion), with the same message.
+
     Joint limits from the spec (``revolute(a, b, angle, lower, upper)``, not in the
     thesis) are kept: the start is clipped into them, every step is projected onto
     them, and a joint held at a limit by a force pushing it outwards drops out of the
     Newton system (projected Levenberg-Marquardt); the equilibrium is then B^T Q = 0
     along the free joints only (a KKT point of the spring energy within the limits).
     """
-    q = np.array(q, dtype=float)
-    if q.shape != (robot.model.nq,):
-        raise TargetError(f"q must have shape ({robot.model.nq},), not {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise TargetError("q is not finite")
-    if robot.root == "free":
-        q[3:7] /= np.linalg.norm(q[3:7])
-    q_in = q.copy()
+    try:
+        q_in = robot._check_q(q)
+    except RobotError as err:
+        raise TargetError(str(err)) from None
+    q = q_in.copy()
     tgt, mask = target_array(robot, targets)
     k = stiffness_array(robot, stiffness, mask)
     ev = _Evaluator(robot, tgt, k)
@@ -454,7 +459,7 @@ def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
 
 def perturbed_targets(
     robot: Robot,
-    q,
+    q: np.ndarray,
     rng: np.random.Generator,
     angle_deg: float = 30.0,
     fraction: float = 0.2,

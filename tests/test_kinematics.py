@@ -388,6 +388,28 @@ def test_euler_parameters_of_simple_rotations():
     np.testing.assert_allclose(kms2pin.euler_parameters(np.eye(3), "thesis"), [1, 0, 0, 0])
 
 
+@pytest.mark.parametrize(
+    "R,match",
+    [
+        (np.diag([1.0, 1.0, -1.0]), r"det R = -1"),  # a reflection: orthogonal, det -1
+        (-rot([1, 2, 3] / np.linalg.norm([1, 2, 3]), 0.7), r"det R = -1"),  # minus a rotation
+        (2.0 * np.eye(3), r"R R\^T differs from the identity by 3"),  # R R^T = 4 I
+        (rot([0, 0, 1], 0.3) + 1e-3, r"differs from the identity"),  # not orthogonal
+        (np.eye(4), r"3 x 3"),
+        (np.full((3, 3), np.nan), "not finite"),
+    ],
+)
+def test_euler_parameters_refuse_a_matrix_that_is_not_a_rotation(R, match):
+    with pytest.raises(kms2pin.RobotError, match=match):
+        kms2pin.euler_parameters(R)
+
+
+def test_euler_parameters_accept_a_rotation_with_rounding_noise():
+    R = rot([0, 1, 0], 1.2) + 1e-9 * np.random.default_rng(3).standard_normal((3, 3))
+    e = kms2pin.euler_parameters(R)
+    np.testing.assert_allclose(e, [math.cos(0.6), 0, math.sin(0.6), 0], atol=1e-8)
+
+
 def euler_by_eq_2_9_2_10(R) -> np.ndarray:
     """Eq. 2.9 and 2.10 exactly as printed (the first x case that is nonzero)."""
     r = lambda i, j: R[i - 1, j - 1]  # noqa: E731
@@ -488,3 +510,61 @@ def test_rest_pose_root_joint_with_a_default_angle():
     for name, M in zip(spec.bodies, spec.body_poses(spec.q_rest)):
         np.testing.assert_allclose(M.translation, ours[name][0], atol=TOL)
         np.testing.assert_allclose(M.rotation, ours[name][1], atol=TOL)
+
+
+# ----------------------------------------------------------------------------- g. malformed q
+
+
+def q_methods(robot, q) -> dict:
+    """Every Robot method that takes a configuration, applied to q."""
+    name = robot.bodies[-1]
+    return {
+        "forward": lambda: robot.forward(q),
+        "body_pose": lambda: robot.body_pose(q, name),
+        "body_poses": lambda: robot.body_poses(q),
+        "maximal_coordinates": lambda: robot.maximal_coordinates(q),
+        "body_jacobian": lambda: robot.body_jacobian(q, name),
+    }
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_configuration_is_refused_naming_the_first_bad_coordinate_and_its_joint(bad):
+    robot = kms2pin.load(SPECS / "lowerbody.kms", root="free")
+    q = np.full(robot.nq, bad)
+    for call in q_methods(robot, q).values():
+        with pytest.raises(kms2pin.RobotError, match=r"^q\[0\] \(x of joint 'root_joint'\) of 'lowerBodyBipedal' is "):
+            call()
+    knee = robot.model.joints[robot.model.getJointId("rightShin_knee")].idx_q
+    q = robot.q_rest.copy()
+    q[knee] = bad
+    q[knee + 1] = bad
+    for call in q_methods(robot, q).values():
+        with pytest.raises(kms2pin.RobotError, match=rf"^q\[{knee}\] \(joint 'rightShin_knee'\)"):
+            call()
+
+
+def test_a_zero_root_quaternion_is_refused():
+    robot = kms2pin.load(SPECS / "lowerbody.kms", root="free")
+    q = robot.q_rest.copy()
+    q[3:7] = 0.0
+    for call in q_methods(robot, q).values():
+        with pytest.raises(kms2pin.RobotError, match=r"quaternion q\[3:7\].*\(x, y, z, w; scalar last\).*zero norm"):
+            call()
+
+
+def test_a_non_unit_root_quaternion_is_used_normalized():
+    """q[3:7] is Pinocchio's (x, y, z, w): its rotation, by our eq. 2.7 with (w, x, y, z)."""
+    robot = kms2pin.load(SPECS / "lowerbody.kms", root="free")
+    unit = np.array([0.3, 0.2, -0.1, 0.9]) / np.linalg.norm([0.3, 0.2, -0.1, 0.9])
+    q = robot.q_rest.copy()
+    q[3:7] = unit
+    scaled = q.copy()
+    scaled[3:7] *= 2.5
+    x, y, z, w = unit
+    root_body = robot.bodies[0]
+    rest = robot.body_pose(robot.q_rest, root_body)
+    np.testing.assert_allclose(
+        robot.body_pose(scaled, root_body).rotation, euler_to_matrix(w, x, y, z) @ rest.rotation, atol=TOL
+    )
+    np.testing.assert_allclose(robot.maximal_coordinates(scaled), robot.maximal_coordinates(q), atol=TOL)
+    assert np.all(scaled[3:7] == 2.5 * unit)  # the caller's array is left alone

@@ -7,6 +7,7 @@ derivatives by finite differences taken with ``pin.integrate``.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -220,6 +221,41 @@ def test_malformed_targets_and_stiffness_are_rejected_with_clear_messages():
         static_update(r, r.q_rest, {"leftShn": pin.SE3.Identity()})
     with pytest.raises(kms2pin.TargetError, match="stiffness"):
         static_update(r, r.q_rest, t, stiffness=-1.0)
+
+
+def test_a_zero_root_quaternion_is_refused_without_a_warning():
+    r = robot("lowerbody", "free")
+    q = r.q_rest
+    bad = np.r_[q[:3], 0, 0, 0, 0, q[7:]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(kms2pin.TargetError, match=r"quaternion q\[3:7\].*scalar last.*zero norm"):
+            static_update(r, bad, r.maximal_coordinates(q))
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_non_finite_q_is_refused_naming_its_joint(value):
+    r = robot("lowerbody", "free")
+    q = r.q_rest.copy()
+    hip = r.model.joints[r.model.getJointId("leftThigh_hip")].idx_q
+    q[hip] = value
+    with pytest.raises(kms2pin.TargetError, match=rf"^q\[{hip}\] \(joint 'leftThigh_hip'\)"):
+        static_update(r, q, r.maximal_coordinates(r.q_rest))
+    with pytest.raises(kms2pin.TargetError, match=r"shape \(13,\)"):
+        static_update(r, q[:5], r.maximal_coordinates(r.q_rest))
+
+
+def test_a_non_unit_root_quaternion_is_normalized(backend):
+    r = robot("lowerbody", "free")
+    rng = np.random.default_rng(4)
+    q = r.random_configuration(rng, 40)
+    t = noisy_targets(r, q, rng)
+    scaled = q.copy()
+    scaled[3:7] *= 3.0
+    a, b = static_update(r, q, t), static_update(r, scaled, t)
+    assert a.converged and b.converged
+    np.testing.assert_allclose(b.q, a.q, atol=1e-9)
+    assert np.linalg.norm(b.q[3:7]) == pytest.approx(1.0, abs=1e-12)
 
 
 def test_a_non_converging_update_returns_its_diagnostics_instead_of_raising(backend):

@@ -20,7 +20,7 @@ sequence), so the tracking model is off by up to ``m`` (e.g. 0.1 = 10 %).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -80,13 +80,15 @@ def corrupt(mask: np.ndarray, noise: float, rng: np.random.Generator) -> np.ndar
 def synthesize(
     robot: Robot,
     motion: np.ndarray,
-    cameras: Sequence[Camera],
+    cameras: Camera | Sequence[Camera],
     *,
     noise: float = 0.0,
     size_mismatch: float = 0.0,
     rng: np.random.Generator | None = None,
-):
-    """Yield ``(frame, masks)`` for every configuration of ``motion`` (T, nq)."""
+) -> Iterator[tuple[int, list[np.ndarray]]]:
+    """Yield ``(frame, masks)`` for every configuration of ``motion`` (T, nq), one
+    mask per camera (a single :class:`Camera` counts as a list of one)."""
+    cameras = [cameras] if isinstance(cameras, Camera) else cameras
     rng = np.random.default_rng() if rng is None else rng
     scales = body_scales(robot, size_mismatch, rng)
     for f, q in enumerate(motion):

@@ -26,6 +26,7 @@ for capture range, a narrow one for accuracy).
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import contextmanager
@@ -34,7 +35,7 @@ import cv2
 import numpy as np
 import pinocchio as pin
 
-from ..errors import CameraError, InputDataError
+from ..errors import CameraError, InputDataError, OptionError, did_you_mean
 from ..native import kernels as _kernels
 from ..robot import Robot
 from ..virtual_work import _structure, body_frames, static_update
@@ -147,6 +148,58 @@ _LIMB_RESET = " reset"  # follows the joint of a limb whose joints below it were
 #: ten clips (0.22-0.35 % of the height against 0.26-0.39 %; with a cast shadow 0.31-0.34
 #: against 0.38-0.44 % on four): docs/tracking.md, video
 SEGMENTED_MASKS = {"limb_search_drop": 0.03}
+
+
+#: numeric options of :class:`Tracker`: name -> (lowest, highest, whether the lowest is
+#: excluded, whether a whole number, whether None is allowed)
+_RANGES = {
+    "max_iterations": (1, None, False, True, False),
+    "min_iterations": (1, None, False, True, False),
+    "tol_deg": (0.0, None, False, False, False),
+    "tol_px": (0.0, None, True, False, True),
+    "delta_start": (0.0, None, True, False, False),
+    "delta_final": (0.0, None, True, False, False),
+    "coarse_delta_px": (0.0, None, True, False, True),
+    "m_iterations": (1, None, False, True, False),
+    "damping": (0.0, None, False, False, False),
+    "stiffness_floor": (0.0, None, False, False, False),
+    "max_pixels": (1, None, False, True, False),
+    "static_iterations": (1, None, False, True, False),
+    "outlier": (0.0, 1.0, False, False, False),
+    "outlier_px": (0.0, None, True, False, False),
+    "max_step": (0.0, None, True, False, True),
+    "poor_fit": (0.0, 1.0, False, False, False),
+    "max_prediction_deg": (0.0, None, False, False, False),
+    "size_every": (0, None, False, True, False),
+    "size_iterations": (1, None, False, True, False),
+    "hypothesis_smoothing": (0.0, 1.0, True, False, False),
+    "mirror_margin": (0.0, None, False, False, False),
+    "swap_margin": (0.0, None, False, False, False),
+    "hypothesis_iterations": (1, None, False, True, True),
+    "depth_prior": (0.0, None, False, False, False),
+    "upright": (0.0, None, False, False, False),
+    "rest_prior": (0.0, None, False, False, False),
+    "limb_search_drop": (-np.inf, None, False, False, False),  # negative: search on every frame
+    "limb_hypothesis_drop": (-np.inf, None, False, False, False),
+    "limb_margin": (0.0, None, False, False, False),
+}
+
+
+def _check_options(options: dict) -> None:
+    """Raise :class:`OptionError` for a numeric option of :class:`Tracker` that is of the
+    wrong type, not finite or out of its range (``_RANGES``)."""
+    for name, (lo, hi, open_lo, whole, none_ok) in _RANGES.items():
+        value = options[name]
+        if value is None and none_ok:
+            continue
+        kinds = (int, np.integer) if whole else (int, float, np.integer, np.floating)
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            what = "a whole number" if whole else "a number"
+            raise OptionError(f"{name} must be {what}{' or None' if none_ok else ''}, not {value!r}")
+        low_ok = value > lo if open_lo else value >= lo
+        if not (np.isfinite(value) and low_ok and (hi is None or value <= hi)):
+            bound = f"{'>' if open_lo else '>='} {lo}" + (f" and <= {hi}" if hi is not None else "")
+            raise OptionError(f"{name} must be {bound}{' or None' if none_ok else ''}, not {value!r}")
 
 
 class Tracker:
@@ -423,30 +476,33 @@ class Tracker:
         limb_hypothesis: bool | None = None,
         limb_hypothesis_drop: float = 0.005,
         limb_margin: float = 0.005,
+        **unknown,
     ):
+        if unknown:
+            name = next(iter(unknown))
+            raise TypeError(f"Tracker got an unknown option '{name}'{did_you_mean(name, _OPTIONS)}")
+        _check_options(locals())
         if prediction not in ("constant_velocity", "previous"):
-            raise ValueError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
+            raise OptionError(f"prediction must be 'constant_velocity' or 'previous', not {prediction!r}")
         self.robot = robot
         self.cameras = [cameras] if isinstance(cameras, Camera) else list(cameras)
         if not self.cameras:
-            raise ValueError("a tracker needs at least one camera")
-        self.max_iterations = max(1, int(max_iterations))
-        self.min_iterations = max(1, min(int(min_iterations), self.max_iterations))
+            raise OptionError("a tracker needs at least one camera")
+        if min_iterations > max_iterations:
+            raise OptionError(f"min_iterations ({min_iterations}) must not exceed max_iterations ({max_iterations})")
+        if not delta_final <= delta_start:
+            raise OptionError(f"delta_start ({delta_start}) must not be below delta_final ({delta_final})")
+        self.max_iterations = int(max_iterations)
+        self.min_iterations = int(min_iterations)
         self.tol = np.radians(tol_deg)
         self.tol_px = None if tol_px is None else float(tol_px)
         self.depth_prior = float(depth_prior)
-        if not self.depth_prior >= 0.0:
-            raise ValueError(f"depth_prior must be >= 0, not {depth_prior!r}")
         self.upright = float(upright)
-        if not self.upright >= 0.0:
-            raise ValueError(f"upright must be >= 0, not {upright!r}")
         self.rest_prior = float(rest_prior)
-        if not self.rest_prior >= 0.0:
-            raise ValueError(f"rest_prior must be >= 0, not {rest_prior!r}")
         up = np.asarray(up, dtype=float)
         norm = float(np.linalg.norm(up)) if up.shape == (3,) else 0.0
         if not (np.isfinite(norm) and norm > 0.0):
-            raise ValueError(f"up must be a non-zero 3-vector, not {up.tolist()!r}")
+            raise OptionError(f"up must be a non-zero 3-vector, not {up.tolist()!r}")
         self.up = up / norm
         self.limb_search = True if limb_search is None else bool(limb_search)
         self.limb_search_drop = float(limb_search_drop)
@@ -469,7 +525,7 @@ class Tracker:
         self.delta_start, self.delta_final = float(delta_start), float(delta_final)
         self.coarse_delta_px = None if coarse_delta_px is None else float(coarse_delta_px)
         if self.coarse_delta_px is not None and not self.coarse_delta_px > self.delta_final:
-            raise ValueError(
+            raise OptionError(
                 f"coarse_delta_px must be above delta_final ({self.delta_final}) or None, not {coarse_delta_px!r}"
             )
         # each camera binned 2x2, for the wide-edge iterations (coarse_delta_px)
@@ -478,7 +534,7 @@ class Tracker:
         self.stiffness_floor = stiffness_floor
         self.max_pixels = max_pixels
         if static not in ("full", "diagonal"):
-            raise ValueError(f"static must be 'full' or 'diagonal', not {static!r}")
+            raise OptionError(f"static must be 'full' or 'diagonal', not {static!r}")
         self.static, self.static_iterations = static, static_iterations
         self.clean = clean
         self.outlier, self.outlier_px = float(outlier), float(outlier_px)
@@ -492,13 +548,13 @@ class Tracker:
         if scales is not None:
             sc = np.asarray(scales, dtype=float)
             if sc.shape != self.scales.shape or not np.all(sc > 0):
-                raise ValueError(f"scales must be positive, shape {self.scales.shape}; got shape {sc.shape}")
+                raise OptionError(f"scales must be positive, shape {self.scales.shape}; got shape {sc.shape}")
             self.scales = sc.copy()
         self.inner = self._spec_inner * self.scales
         self.outer = self._spec_outer * self.scales
         self.calibrate_sizes, self.size_iterations = bool(calibrate_sizes), int(size_iterations)
         self._calibrated = False
-        self.size_every = max(0, int(size_every))
+        self.size_every = int(size_every)
         # the evidence on the body sizes so far (:meth:`_refine_sizes`): per body the sum of
         # its size fits' Gauss-Newton matrices (in log semi-axes), and of those matrices
         # times the fitted log-scales
@@ -1455,6 +1511,8 @@ class Tracker:
         q0 = np.array(q0, dtype=float)
         if q0.shape != (self.robot.nq,):
             raise InputDataError(f"{what} has {q0.size} values but '{self.robot.system.name}' needs {self.robot.nq}")
+        if not np.isfinite(q0).all():
+            raise InputDataError(f"{what} is not finite (coordinate {int(np.flatnonzero(~np.isfinite(q0))[0])})")
         self.q = q0
         self._prev: np.ndarray | None = None
         self._alts.clear()
@@ -1489,3 +1547,8 @@ class Tracker:
         return Trajectory(
             self.robot, np.array([r.q for r in results]).reshape(-1, self.robot.nq), results, scales=self.scales
         )
+
+
+#: the keyword options of :class:`Tracker` (for a misspelt one's did-you-mean)
+_OPTIONS = tuple(p for p in inspect.signature(Tracker.__init__).parameters
+                 if p not in ("self", "robot", "cameras", "unknown"))

@@ -20,8 +20,11 @@ class FrameResult:
     """One tracked frame.
 
     Attributes:
-        q: configuration (Pinocchio ``q``).
-        body_poses: (n_bodies, 7) maximal coordinates [mu, theta0..3] at ``q``.
+        q: (nq,) Pinocchio configuration; a free-flyer root is
+            ``(x, y, z, qx, qy, qz, qw)``, quaternion scalar last.
+        body_poses: (n_bodies, 7) maximal coordinates ``(x, y, z, e0, e1, e2, e3)`` at
+            ``q``: world position of the body frame (m), then Euler parameters scalar
+            first (eq. 2.7).
         iterations: ECM iterations run.
         fit: intersection over union of the model's inner silhouettes with the masks
             (over all cameras).
@@ -50,15 +53,36 @@ class FrameResult:
 class Trajectory:
     """Tracked (or true) configurations over frames, with CSV/NPZ input and output.
 
+    Args:
+        robot: the model the configurations belong to.
+        q: (frames, nq) Pinocchio configurations, or one (nq,) configuration.  A
+            free-flyer root is ``(x, y, z, qx, qy, qz, qw)``: quaternion scalar last.
+        results: the tracker's :class:`FrameResult` per frame, or none.
+        scales: (n_bodies, 3) semi-axis factors of the tracked model, or None.
+
+    Raises :class:`InputDataError` for a ``q`` of another shape, a non-finite ``q``
+    (naming the first such frame) or a number of results other than 0 or ``frames``.
+
     The CSV has a ``frame`` column then one column per joint coordinate: revolute
     joint angles in degrees named after the joint; a free-flyer root as
     ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``.
     """
 
-    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = (), scales=None):
+    def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = (),
+                 scales: np.ndarray | None = None):
         self.robot = robot
-        self.q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
+        q = np.asarray(q, dtype=float)
+        if q.shape == (robot.nq,):
+            q = q[None]
+        if q.ndim != 2 or q.shape[1] != robot.nq:
+            raise InputDataError(f"q must have shape (frames, nq) with nq = {robot.nq}, not {q.shape}")
+        bad = np.flatnonzero(~np.isfinite(q).all(axis=1))
+        if len(bad):
+            raise InputDataError(f"q of frame {bad[0]} is not finite: {q[bad[0]].tolist()}")
+        self.q = q
         self.results = list(results)
+        if self.results and len(self.results) != len(q):
+            raise InputDataError(f"results must be empty or one per frame ({len(q)}), not {len(self.results)}")
         #: (n_bodies, 3) semi-axis factors of the tracked model (:meth:`~kms2pin.ecm.tracker.Tracker.calibrate`)
         self.scales = None if scales is None else np.array(scales, dtype=float)  # a copy: the tracker refines its own
 
@@ -101,18 +125,77 @@ class Trajectory:
                 w.writerow([k, *(f"{x:.10g}" for x in row), *tail])
 
     def to_npz(self, path: str | os.PathLike) -> None:
-        """Body poses (T, n_bodies, 7) maximal coordinates, q (T, nq), body and joint names,
-        fits and the body-size factors (n_bodies, 3) the tracker used."""
-        poses = np.array([self.robot.maximal_coordinates(q) for q in self.q])
+        """Save as NPZ (read back by :meth:`from_npz`), with the arrays
+
+        - ``q`` (T, nq): Pinocchio configurations (free-flyer quaternion scalar last);
+        - ``body_poses`` (T, n_bodies, 7): maximal coordinates ``(x, y, z, e0, e1, e2,
+          e3)``, Euler parameters scalar first (eq. 2.7);
+        - ``bodies``, ``joint_names``: the robot's names;
+        - ``fit``, ``iterations``, ``converged`` and ``flags`` (``;``-joined) per frame,
+          empty without tracker results;
+        - ``body_scales`` (n_bodies, 3): the body-size factors the tracker used (ones
+          if none).
+        """
+        poses = np.array([self.robot.maximal_coordinates(q) for q in self.q]).reshape(
+            len(self.q), len(self.robot.bodies), 7)
+        res = self.results
         np.savez_compressed(
             path,
             q=self.q,
             body_poses=poses,
             bodies=np.array(self.robot.bodies),
             joint_names=np.array(self.robot.joint_names),
-            fit=np.array([r.fit for r in self.results]) if self.results else np.zeros(0),
+            fit=np.array([r.fit for r in res], dtype=float),
+            iterations=np.array([r.iterations for r in res], dtype=int),
+            converged=np.array([r.converged for r in res], dtype=bool),
+            flags=np.array([";".join(r.flags) for r in res], dtype=str),
             body_scales=np.ones((len(self.robot.bodies), 3)) if self.scales is None else self.scales,
         )
+
+    @classmethod
+    def from_npz(cls, robot: Robot, path: str | os.PathLike) -> Trajectory:
+        """Read a trajectory saved by :meth:`to_npz` (``kms2pin track``'s ``poses.npz``).
+
+        Restores ``q``, ``scales`` and, if the file has them, one :class:`FrameResult`
+        per frame (its ``body_poses`` from the file, no ``timings``).  Raises
+        :class:`InputDataError` naming the file if it cannot be read or was saved for
+        other bodies.
+        """
+        try:
+            z = np.load(path, allow_pickle=False)
+        except OSError as err:
+            raise InputDataError(f"{path}: cannot read: {err.strerror or err}") from None
+        except (ValueError, EOFError):
+            z = None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise InputDataError(f"{path}: not an NPZ file")
+        with z:
+            data = {k: z[k] for k in z.files}
+        missing = [k for k in ("q", "body_poses", "bodies") if k not in data]
+        if missing:
+            raise InputDataError(f"{path}: missing arrays {', '.join(missing)}; the file has {', '.join(data)}")
+        if list(data["bodies"]) != list(robot.bodies):
+            raise InputDataError(
+                f"{path}: saved for the bodies {', '.join(data['bodies'])}, "
+                f"not those of '{robot.system.name}': {', '.join(robot.bodies)}"
+            )
+        q, poses, fit = data["q"], data["body_poses"], data.get("fit", np.zeros(0))
+        results = []
+        if len(fit):
+            if len(fit) != len(q) or len(poses) != len(q):
+                raise InputDataError(f"{path}: {len(q)} frames of q but {len(poses)} of body_poses and {len(fit)} fits")
+            its = data.get("iterations", np.zeros(len(q), dtype=int))
+            conv = data.get("converged", np.zeros(len(q), dtype=bool))
+            flags = data.get("flags", np.full(len(q), ""))
+            results = [
+                FrameResult(q[k].copy(), poses[k], int(its[k]), float(fit[k]), bool(conv[k]),
+                            tuple(str(flags[k]).split(";")) if flags[k] else ())
+                for k in range(len(q))
+            ]
+        try:
+            return cls(robot, q, results, scales=data.get("body_scales"))
+        except InputDataError as err:
+            raise InputDataError(f"{path}: {err}") from None
 
     @classmethod
     def from_csv(cls, robot: Robot, path: str | os.PathLike) -> Trajectory:

@@ -171,8 +171,9 @@ def read_frames(path: str | os.PathLike) -> Iterator[tuple[int, np.ndarray]]:
         warnings.warn(src.stopped_early, TruncatedVideoWarning, stacklevel=2)
 
 
-def write_png_atomically(path: Path, image: np.ndarray) -> None:
+def write_png_atomically(path: str | os.PathLike, image: np.ndarray) -> None:
     """Encode ``image`` as PNG and move it into place (a reader never sees half a file)."""
+    path = Path(path)
     ok, buf = cv2.imencode(".png", image)
     if not ok:  # pragma: no cover - cv2 encodes any uint8 image
         raise InputDataError(f"{path}: cannot encode PNG")
@@ -190,9 +191,9 @@ def write_png_atomically(path: Path, image: np.ndarray) -> None:
         raise
 
 
-def write_mask(folder: Path, index: int, mask: np.ndarray) -> Path:
+def write_mask(folder: str | os.PathLike, index: int, mask: np.ndarray) -> Path:
     """Write ``mask`` (bool or 0/255) as ``folder/frame_NNNNN.png`` (0/255, atomically)."""
-    path = folder / MASK_NAME.format(index)
+    path = Path(folder) / MASK_NAME.format(index)
     img = np.where(np.asarray(mask) > 0, 255, 0).astype(np.uint8)
     write_png_atomically(path, img)
     return path
@@ -201,9 +202,10 @@ def write_mask(folder: Path, index: int, mask: np.ndarray) -> Path:
 _MASK_RE = re.compile(r"^frame_(\d{5,})\.png$")
 
 
-def remove_masks_from(folder: Path, first: int) -> int:
+def remove_masks_from(folder: str | os.PathLike, first: int) -> int:
     """Delete ``folder``'s masks numbered ``first`` or more (an earlier, longer run's),
     so that the folder holds one sequence; returns how many."""
+    folder = Path(folder)
     if not folder.is_dir():
         return 0
     stale = [p for p in folder.iterdir() if (m := _MASK_RE.match(p.name)) and int(m.group(1)) >= first]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import meshcat
 import numpy as np
@@ -14,18 +15,24 @@ from .errors import ViewerError
 from .robot_view import RobotView, check_trajectory, save_html
 from .scene import union_points
 
+if TYPE_CHECKING:
+    from ..ecm.trajectory import Trajectory
 
-def animate(robot: Robot, trajectory, fps: float = 30.0, vis: meshcat.Visualizer | None = None, *,
-            camera: str = "front", aspect: float = 16 / 10, repetitions: int = 1,
-            play: bool = True) -> meshcat.Visualizer:
-    """Draw ``robot`` and load the ``(T, nq)`` ``trajectory`` as a meshcat animation.
+
+def animate(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float = 30.0,
+            vis: meshcat.Visualizer | None = None, *, camera: str = "front", aspect: float = 16 / 10,
+            repetitions: int = 1, play: bool = True) -> meshcat.Visualizer:
+    """Draw ``robot`` and load ``trajectory`` as a meshcat animation.
+
+    ``trajectory`` is a ``(T, nq)`` array of configurations or anything with such a
+    ``q`` attribute (a :class:`~kms2pin.ecm.Trajectory`).
 
     The model is drawn at frame 0; the camera frames every pose of the
     trajectory.  The animation (``fps`` frames per second) is part of
     ``vis.static_html()``, so a standalone page plays it.  Without ``vis`` the
     scene is recorded without a server.
     """
-    traj = check_trajectory(robot, trajectory)
+    traj = check_trajectory(robot, getattr(trajectory, "q", trajectory))
     fps = float(fps)
     if not (fps > 0 and np.isfinite(fps)):
         raise ViewerError(f"fps must be positive, not {fps}")
@@ -46,8 +53,9 @@ def animate(robot: Robot, trajectory, fps: float = 30.0, vis: meshcat.Visualizer
     return view.vis
 
 
-def write_animation_html(robot: Robot, trajectory, fps: float, path: str | os.PathLike, *,
-                         camera: str = "front", repetitions: int = 1) -> Path:
-    """Write a standalone HTML page playing ``trajectory`` (no server needed)."""
+def write_animation_html(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float,
+                         path: str | os.PathLike, *, camera: str = "front", repetitions: int = 1) -> Path:
+    """Write a standalone HTML page playing ``trajectory`` (as for :func:`animate`; no
+    server needed)."""
     vis = animate(robot, trajectory, fps, camera=camera, repetitions=repetitions)
     return save_html(vis, path)

@@ -50,3 +50,17 @@ def test_bad_trajectories(lowerbody, bad):
         animate(lowerbody, bad, 10)
     with pytest.raises(ViewerError, match="fps"):
         animate(lowerbody, np.zeros((2, 7)), 0)
+
+
+def test_animation_html_of_a_trajectory_object_to_a_str_path(lowerbody, tmp_path):
+    from kms2pin.ecm import Trajectory
+
+    traj = _trajectory(lowerbody, 5)
+    path = write_animation_html(lowerbody, Trajectory(lowerbody, traj), 10, str(tmp_path / "a.html"))
+    assert path == tmp_path / "a.html"
+    (anim,) = [c for c in page_commands(path.read_text()) if c["type"] == "set_animation"]
+    shin = {a["path"]: a["clip"] for a in anim["animations"]}[f"/meshcat/{ROOT}/model/bodies/leftShin"]
+    pos = {t["name"]: t for t in shin["tracks"]}[".position"]
+    assert len(pos["keys"]) == len(traj)
+    expected = lowerbody.body_poses(traj[-1])[lowerbody.index("leftShin")].translation
+    np.testing.assert_allclose(pos["keys"][-1]["value"], expected)
