@@ -455,3 +455,10 @@ def test_a_missing_camera_file_is_a_usage_error_like_a_missing_spec(tmp_path, ca
     assert main(["synth", LOWER, "--cameras", nothere, "-o", str(tmp_path / "s")]) == 2
     assert f"{nothere}: no such file" in capsys.readouterr().err
     assert not (tmp_path / "o").exists() and not (tmp_path / "s").exists()
+
+
+def test_an_option_given_twice_is_a_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["track", LOWER, "--masks", "a", "--masks", "b", "-o", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "argument --masks: given twice ('a' and 'b')" in capsys.readouterr().err

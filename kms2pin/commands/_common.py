@@ -66,6 +66,16 @@ def in_range(lo: float, hi: float, hi_open: bool = False, lo_open: bool = False)
     return parse
 
 
+class Once(argparse.Action):
+    """argparse action: the option may be given once (a second value is a usage error,
+    not silently the one that counts)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if getattr(namespace, self.dest, None) not in (None, self.default):
+            parser.error(f"argument {option_string}: given twice ({getattr(namespace, self.dest)!r} and {values!r})")
+        setattr(namespace, self.dest, values)
+
+
 def add_spec_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("spec", metavar="MODEL.kms", help="model specification file")
 

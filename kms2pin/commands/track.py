@@ -36,7 +36,7 @@ from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWri
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ..video.io import remove_masks_from
-from ._common import add_spec_argument, count, non_negative, positive, read_model
+from ._common import Once, add_spec_argument, count, non_negative, positive, read_model
 from .segment import add_lighting_arguments
 
 NAME = "track"
@@ -48,13 +48,13 @@ _NUM = re.compile(r"(\d+)(?=\.png$)", re.IGNORECASE)
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_spec_argument(p)
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--masks", metavar="DIR", help="mask folder (camK/ sub-folders or PNGs)")
+    src.add_argument("--masks", action=Once, metavar="DIR", help="mask folder (camK/ sub-folders or PNGs)")
     src.add_argument("--video", action="append", metavar="VIDEO",
                      help="video file or image folder, once per camera (synchronized); segmented into masks")
     p.add_argument("--camera", action="append", metavar="CAM.json",
                    help="camera file, once per camera in order (default: DIR/cameras.json)")
     p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
-    p.add_argument("--init", metavar="POSE",
+    p.add_argument("--init", action=Once, metavar="POSE",
                    help="initial pose: POSE.csv (first row of a trajectory CSV), POSE.json "
                         '({"joints": {name: degrees}, "root": {"position": [...], "rotation": 3x3 | '
                         '"quaternion_xyzw": [...]}}) or "auto" (found from the first frame; the default with '
@@ -117,7 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "joints' mean stiffness (default 0: off; 0.01 for people walking, seen by one "
                         "camera: it holds the joints the images do not fix, e.g. a hidden arm's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+    p.add_argument("-o", "--output", action=Once, required=True, metavar="OUT", help="output folder")
 
 
 def _up_vector(xyz) -> np.ndarray:
