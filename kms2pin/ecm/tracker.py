@@ -203,231 +203,86 @@ def _check_options(options: dict) -> None:
 
 
 class Tracker:
-    """ECM tracker for one robot seen by one or more cameras.
+    """ECM tracker for one robot seen by one or more cameras (thesis §2.1.2).
+
+    Per frame: E-step, M-step and static update (eq. 2.28, springs eq. 2.33) until
+    the pose settles.  Measurements: docs/tracking.md.
 
     Args:
-        robot: the model (``root="free"`` for bodies that move around).
-        cameras: one :class:`Camera` per mask stream (or a single camera).
-        q0: starting configuration (default ``robot.q_rest``); every camera must see
-            part of the model there (else :class:`CameraError`).
-        max_iterations: ECM iterations per frame.
-        min_iterations: ECM iterations always run (the edge width reaches ``delta_final``
-            by then).
-        tol_deg: stop when no joint moves more than this (degrees; the root's
-            translation: this many hundredths of the model height per degree).  At
-            0.2 the benchmark's accuracy equals that at 0.05 with 10-20 % fewer
-            iterations.
-        tol_px: also stop when no body moves more than this many pixels in any camera
-            (its centre and the ends of its inner ellipsoid's axes, projected; None:
-            joint angles only).  With one camera a body creeps along the viewing ray,
-            where the images hardly see it, long after its outline has settled: the
-            joint-angle test alone then runs every frame to ``max_iterations``.
-        prediction: ``"constant_velocity"`` or ``"previous"``.
-        delta_start, delta_final: edge width of the sharp silhouettes (pixels), annealed
-            by halves from the first to the second within a frame.  2.8 = 4 x 0.7
-            reaches 0.7 on the third iteration, so a frame can converge in 3 iterations;
-            from 3.0 it took 4 (every multi-camera frame of the benchmark did).  Measured:
-            the same accuracy to three decimals with two or four cameras, 1.25x the
-            frames/s; with one camera the lower body with limits gave a median of 2.1 %
-            and 6.7° over five seeds, against 2.2 % and 6.2°.
-        coarse_delta_px: iterations whose edge width is at least this many pixels (from
-            ``delta_start``, the first two of a frame) run on the masks binned 2x2 and
-            cameras to match (:meth:`Camera.binned`): a quarter of the pixels, each
-            holding the fraction of its block that is set, and the same edge width in
-            world terms (half as many binned pixels).  The narrow-edge iterations that
-            follow are at full resolution.  None: full resolution throughout.
+        robot: the model (``root="free"`` for a moving subject).
+        cameras: one :class:`Camera` per mask stream, or a single camera.
+        q0: starting pose (default ``robot.q_rest``); every camera must see part of
+            the model there, else :class:`CameraError`.
+        max_iterations, min_iterations: most and fewest ECM iterations per frame.
+        tol_deg, tol_px: a frame has converged when no joint moves more than ``tol_deg``
+            (degrees; the root's translation: 1 % of the model height as 1°) or no body's
+            outline more than ``tol_px`` pixels in any camera (None: joints only; one
+            camera then ran 7.4 iterations a frame, not 5.0).
+        prediction: ``"constant_velocity"`` (the last frame's motion) or ``"previous"``.
+        delta_start, delta_final: edge width of the sharp silhouettes (pixels), halved
+            each iteration from the first to the second; 2.8 = 4 x 0.7 reaches 0.7 on the
+            third (3.0 on the fourth; 2.8 is 1.25x as fast).
+        coarse_delta_px: iterations whose edge is at least this wide (pixels, above
+            ``delta_final``) run binned 2x2 (:meth:`Camera.binned`).  None: off (it
+            cost one camera accuracy).
         m_iterations: Gauss-Newton iterations of each body's M-step.
-        damping: M-step damping towards the primary pose, relative to the largest
-            curvature of the body's data term.  A body the images hardly fix (an arm
-            over the trunk, a foot seen end-on, anything along one camera's viewing
-            ray) then stays near the pose the joints give it.  0.05 against 0.01, ten
-            noise seeds of the one-camera full body with the upright prior: median
-            centre error 2.5 % against 3.7 %, joint RMSE 10.6 against 13.4 deg; two
-            cameras, seeds 0-2: 0.32 % against 0.46 %.  0.1 was worse with one camera.
-        stiffness_floor: least spring stiffness, as a fraction of the strongest body's.
+        damping: M-step pull towards the body's pose from the joints, relative to its
+            largest data curvature: a body the images hardly fix stays put.  0.05: one
+            camera 2.5 % against 3.7 % with 0.01 (docs/tracking.md, M-step damping).
+        stiffness_floor: spring stiffness floor, a fraction of the stiffest body's (added
+            to every spring with ``static="full"``, a lower bound with ``"diagonal"``).
         max_pixels: pixels per body and camera above which the M-step subsamples.
-        static, static_iterations: static update with full 6x6 springs (``"full"``) or
-            the thesis's diagonal ones (``"diagonal"``), and its Gauss-Newton iterations
-            (with full springs each step is halved until it lowers the springs' energy).
-        clean: 3x3 median-filter the masks first (off by default: it removes
-            isolated noise but also thin detail, e.g. fullbody's hands, and did not
-            help the noisy benchmark).
-        outlier, outlier_px: the outlier class (0 = off, the default).  A pixel's
-            inlier responsibility is ``p / (p + outlier)`` with ``p`` the probability
-            of its mask value under the model's union drawn with an edge at least
-            ``outlier_px`` wide; it weights the pixel's residual in the M-step, so a
-            pixel no body explains (a false blob, a hole) pulls nobody.  Off by
-            default: on the noisy walk benchmark even ``outlier=0.01`` discounted the
-            pixels that tell a turn from its mirror image and the tracker diverged.
-        max_prediction_deg: the constant-velocity prediction moves no joint more than
-            this per frame (degrees; the root's translation: this many hundredths of the
-            model height), so that a spinning, poorly seen joint is not carried on.
-        poor_fit: a frame whose fit (IoU of the model's silhouettes with the masks) is
-            below this is flagged ``"poor fit (...)"``: the track is probably lost there.
-        max_step: cap on a body's M-step move per Gauss-Newton step (body sizes /
-            radians; None: no cap).
-        scales: (n_bodies, 3) factors on the spec's semi-axes to start from (e.g. another
-            tracker's :attr:`scales` for the same subject); default all 1.
-        calibrate_sizes: measure the body sizes on the first frame with the pose held at
-            ``q0`` (:meth:`calibrate`); turn off when the first frame does not show the
-            subject at ``q0``.  On the benchmark it cut the multi-camera body-centre errors
-            by 29-63 %.
-        size_every: with ``calibrate_sizes``, the sizes are refined on every this many
-            frames after the first (0: the first frame's are kept), from the frames
-            that fit at least as well as the running fit and have nothing flagged.
-            Each such frame's fit of the sizes is weighted by its information
-            (:meth:`_refine_sizes`), so an axis along one camera's viewing ray on the
-            first frame is measured once the subject turns it into view.  With a 10 %
-            size mismatch it gave the one-camera full body with both priors a median
-            body-centre error of 0.97 % against 1.29 % over ten seeds (docs/tracking.md).  It
-            assumes the masks' errors are noise: on segmented video with a systematic
-            error (before the segmentation's temporal mode, a false blob beside the
-            subject in every frame) it made the full body worse on two clips of three.
-            Without that blob it helps two cameras on every clip, a cast shadow or not
-            (docs/tracking.md, video); ``--size-every 0`` keeps the first frame's sizes.
-            ``track``'s automatic initialization measures no sizes, so none are refined.
+        static, static_iterations: springs (eq. 2.33) ``"full"`` 6x6 per body (the
+            M-step's Gauss-Newton matrix) or the thesis's ``"diagonal"``; the Gauss-Newton
+            steps of ``"full"`` (``"diagonal"`` runs to convergence).
+        clean: 3x3 median-filter the masks (:func:`clean_mask`); off, as it also removes
+            thin detail (hands) and did not help the noisy benchmark.
+        outlier, outlier_px: outlier class; a pixel weighs ``p / (p + outlier)``, ``p`` its
+            probability under the bodies' union with an edge at least ``outlier_px`` wide.
+            0 (off): on the noisy walk even 0.01 made the track diverge.
+        max_step: cap on an M-step step (mean semi-axes or radians; None: no cap).
+        poor_fit: a frame fitting worse (IoU with the masks) is flagged ``"poor fit
+            (...)"`` and passes no velocity on.
+        max_prediction_deg: cap on each joint's predicted motion per frame (degrees; root
+            translation as in ``tol_deg``), against spinning.
+        scales: (n_bodies, 3) factors on the spec's semi-axes to start from (default 1).
+        calibrate_sizes: fit the scales on the first frame at ``q0`` (:meth:`calibrate`;
+            it cut multi-camera errors by 29-63 %); off if that frame is not at ``q0``.
+        size_every: refine calibrated sizes on frames 0, n, 2n, ... that fit at least as
+            well as the running fit and have no flag (10 % size error, one camera: 0.97 %
+            against 1.29 %).  0 keeps the first frame's, for masks with systematic
+            errors (docs/tracking.md, size refinement).
         size_iterations: E-step / size-fit rounds of the calibration.
-        mirror_hypothesis: also track the mirror-image hypothesis of the pose (``None``:
-            when there is one camera, the root is free and the model has left/right
-            bodies).  In one view a body turned by +a from side-on looks like one turned
-            by -a with its legs swapped (a reflection through the plane across the ray);
-            which way a turn goes shows only as it proceeds.  A second hypothesis, the
-            root's orientation reflected so (R -> M_ray R M_sagittal, joints kept), is
-            tracked alongside.  With the joint limits of ``specs/anatomical`` it took the
-            one-camera lower-body walk benchmark from lost to 2.3 % and 7.7°.
-        swap_hypothesis: also track the hypothesis with the left and right joints'
-            angles exchanged (``None``: when there is one camera, the model has joint
-            limits, and it has left/right joints whose exchange reflects the body through
-            its own left/right plane).  Side-on, one view cannot tell the left leg from
-            the right one; the swap shows when the body turns.  On the benchmark it
-            brought the one noise seed of five whose legs were swapped after a turn from
-            4.2 % to 1.4 %; on the thesis's models, without limits, it made the lost
-            one-camera tracks worse (lower body 7.6 -> 9.7 %, full body 28 -> 41 %).
-        hypothesis_smoothing, mirror_margin, swap_margin: every hypothesis keeps a
-            running fit (IoU, exponentially smoothed with this weight on the new frame);
-            the tracker reports the main one and switches to an alternative whose running
-            fit leads by more than its margin (flag ``"switched to the mirror
-            hypothesis"`` / ``"switched to the left/right-swapped hypothesis"``).  The
-            swap's margin is larger: side-on its fit ties with the main one's.
-        hypothesis_iterations: ECM iterations of each alternative hypothesis per frame
-            (default: as many as the main one's; each alternative adds up to one more
-            ECM a frame).  Measured: 3 kept the 300-frame benchmark's accuracy at 1.35x
-            the frames/s, but took 1 of 4 noisy turn segments the right way round where
-            8 took 3 of 4.
-        binned_hypotheses: track the alternative hypotheses on the masks binned 2x2
-            (:meth:`Camera.binned`, as ``coarse_delta_px`` does for the wide-edge
-            iterations) throughout; their fit (IoU) is still taken on the full masks.
-            The main hypothesis stays at full resolution.  Measured on the one-camera
-            full body, interleaved runs of 150 frames: 1.25x the frames/s with the
-            upright prior, 1.38x with limits only.  Over noise seeds it costs some
-            accuracy: with the upright prior (ten seeds) a median of 2.8 % and 11.0 deg
-            against 2.5 % and 10.6 deg (worst seeds 3.4 % against 3.5 %), with limits
-            only (five) 3.7 % against 3.1 % (worst 5.4 against 4.0 %).  Off by default.
-        depth_prior: a spring in the static update holding the root's distance along
-            each camera's ray at its value at the start of the frame's iterations (the
-            prediction), this many times the root translation's mean stiffness (0: off,
-            the default).  With one camera a lost track can slide towards the camera,
-            where bent, nearer limbs still cover the silhouette.  Measured on the
-            one-camera benchmark over noise seeds: 0.02 brought the full body with
-            limits from a median 42 % to 22 % (six seeds, still lost), left the lower
-            body with limits where it was (2.2 %), and gave the thesis's full body
-            18 % against 12.5 % (both lost); 0.05 lost one lower-body seed of five.
-        upright, up: a spring in the static update holding the root's tilt from the
-            world's ``up`` axis (default +y, the thesis scenes' vertical) at its value at
-            ``q0``: the root's axis that is vertical at ``q0`` is pulled back to vertical,
-            and the root turns freely about ``up``.  ``upright`` times the root rotation's
-            mean stiffness (0: off, the default; no effect unless the root is free).  For
-            subjects that stay upright, such as people walking.  With one camera the
-            pelvis, small and nearly round side-on, can pitch while the hips and waist
-            make up for it; a turn then goes about a tilted axis and the track is lost.
-            Measured with 0.1 on the one-camera walk benchmark (seeds 0-2, the models of
-            ``specs/anatomical``): the full body from lost (33, 64, 53 %) to 3.0, 4.0 and
-            4.6 % (seeds 0-4: median 4.0 %, 15°); the lower body over seeds 0-4 from a
-            median of 2.1 % to 1.5 % (6.1°).  With two cameras it is not needed, and it
-            made the full body worse (0.42 % against 0.22 %).
-        rest_prior: a spring in the static update pulling every joint angle (not the
-            root) towards the spec's rest pose, this many times the joints' mean stiffness
-            (0: off, the default).  A joint the images do not fix, such as the elbow of an
-            arm hidden behind the trunk in one view, otherwise goes wherever the
-            prediction carries it.  It biases every joint towards rest a little, so it
-            suits subjects that stay near it (walking people), not the extremes of a
-            joint's range.  Measured with 0.01 (and ``upright=0.1``, the models of
-            ``specs/anatomical``) on the one-camera walk benchmark: the full body over ten
-            seeds, median centre error 2.6 % against 2.5 % without, joint RMSE 8.2 deg
-            (at most 9.8) against 10.6 deg (at most 15.4), 4.3-4.6 iterations a frame
-            against 4.8-5.2; the lower body over five seeds 1.0 % (at most 1.2) against
-            1.2 % (at most 2.5), 5.3 deg (at most 5.6) against 4.8 deg (at most 12.4),
-            worst frames 2.4-4.2 % against 2.4-19.8 %.
-        limb_search, limb_search_drop: when a frame's fit (IoU) falls more than
-            ``limb_search_drop`` below the running fit (``hypothesis_smoothing``), swing
-            every limb (:func:`limb_joints`: the hips, the waist and the shoulders of a
-            person) the other way, its first joint's angle reflected about its rest
-            angle, with the joints below it kept or put back at rest; each candidate is
-            screened by a few ECM iterations on the masks binned 2x2, the two best are
-            refined, and the better is kept if it fits better (flag ``"swung
-            '<joint>' the other way"``).  On by default (``None`` too).  In one view an
-            arm that has gone back over the trunk while the true one swings forwards
-            fits nearly as well, and ECM does not leave it (a local minimum, not an
-            ambiguity: the true side fits better).  Measured on the one-camera
-            full-body walk with limits, the upright and the rest prior, ten seeds:
-            median centre error 1.9 % (at most 3.1) against 2.6 % (3.2), joint RMSE
-            6.7 deg (8.5) against 8.2 (9.8), at 0.79x the frames/s.  A larger drop
-            (0.02, 0.025) fired on half or a third as many frames but, on seeds 0-6, kept
-            only about a third of the gain (medians 2.4 % and 2.3 % against 1.9 % and,
-            without the search, 2.6 %).
-            The search also exchanges twin limbs (``left*`` / ``right*``: the arms, the
-            legs), as a candidate of the search above and, on its own, on each of the
-            four frames after the twins' first joints come within 8 deg of each other
-            or pass each other (flag ``"swapped '<left>' and '<right>'"``): side-on, as
-            the arms come apart, one model arm can follow the other's image while its
-            twin stays hidden behind the trunk, and the fit hardly falls.  On the same
-            benchmark the exchange took the median centre error from 1.9 % to 1.3 % (at
-            most 1.9), the joint RMSE from 6.7 to 5.2 deg (at most 6.3), and the seeds
-            whose last 30 frames are at most 1.5x their first 30 from four to eight of
-            ten, at 0.78x the frames/s (seeds 0-4, alone).
-            A third candidate puts each limb back at rest below its first joint, that
-            joint kept (flag ``"put the joints below '<joint>' back at rest"``): in one
-            view a finger can fold its last joints the wrong way round, and ECM keeps
-            the fold.  On the one-camera hand, seeds 0-19, it took the median centre
-            error from 2.9 % to 2.7 %, the worst seed from 16.4 % to 10.1 %, and the
-            seeds ending within 1.5x of their start from 11 to 14 of 20.  The walkers
-            with both priors stay where they were (ten seeds each; docs/tracking.md), at 0.92x
-            the frames/s on the full body.
-            With several cameras a finger folds the same way (clean silhouettes, front
-            and side cameras: the tip 144 deg off under ECM), so the search runs there
-            too, on a falling fit only: the exchange after twins cross, which two views
-            tell apart, ran after every crossing and cost the walkers 0.55-0.70x the
-            frames/s.  Measured against the search off: the two-camera hand, seeds 0-19,
-            worst seed 0.69 % against 1.20 % (seeds 10, 12, 13 and 16 better, none
-            worse), the two-camera full body's seed 2 0.20 % against 0.36 %, the other
-            benchmark rows with several cameras the same to the digit, at 0.96-0.98x the
-            frames/s.
-            The search on a falling fit waits until the running fit has settled, about
-            1 / ``hypothesis_smoothing`` frames (5): before that the running fit is
-            mostly the first frame's, which the size calibration or the initialization
-            fitted to that very frame.  On one-camera segmented video with automatic
-            initialization it fired on frame 3 of every clip, and its swing took the
-            error to 5-8 % for a few frames (docs/tracking.md, video).
-        limb_hypothesis, limb_hypothesis_drop, limb_margin: on a frame whose fit falls
-            more than ``limb_hypothesis_drop`` below the running fit but not by
-            ``limb_search_drop``, the limb search's candidates are screened, and the
-            best, if it fits the frame better, is tracked beside the pose as an
-            alternative hypothesis (one at a time) instead of being kept at once.  It
-            becomes the pose when its running fit leads by ``limb_margin`` (flag
-            ``"switched to the limb-search hypothesis"``), and is dropped when it falls
-            0.02 behind or every joint comes within 10 deg of the pose's.  ``None``: on
-            with one camera (it needs the limb search).  Searching on a fall of 0.005 and
-            keeping the best at once lost as many one-camera hand seeds as it saved:
-            a candidate can fit one frame better and the next ones worse.  Measured
-            against it off, one camera, same session: the hand (seeds 0-19) no longer
-            lost (worst seed 4.4 % against 10.1 %, median 2.7 % both, 12 of 20 ending
-            within 1.5x of their start against 13); the full body with both priors
-            (ten seeds) 0.93 % against 1.00 %, worst seed 1.15 % against 1.68 %; with
-            the upright prior alone 0.80 % against 0.89 %, but one seed of ten ends at
-            2.47x its start; with limits only 1.29 % against 1.83 % (five); the thesis's
-            full body without priors 1.24 % against 1.08 %; the lower bodies with limits
-            or priors the same to the digit; at 0.78-0.88x the frames/s
-            (docs/tracking.md).
+        mirror_hypothesis, swap_hypothesis: also track the pose's mirror image in the
+            camera, and the pose with left/right joints exchanged (None: with one camera,
+            a free root and left/right bodies; the swap only with joint limits).
+        hypothesis_smoothing: a new frame's weight in every hypothesis's running fit
+            (IoU); switches and the limb search wait about 1 / this frames.
+        mirror_margin, swap_margin, limb_margin: how far an alternative's running fit
+            must lead the main one's to replace it (flag ``"switched to the ..."``).
+        hypothesis_iterations: ECM iterations of each alternative a frame (None: as
+            ``max_iterations``); fewer are faster but lose turns.
+        binned_hypotheses: track the alternatives binned 2x2 (1.25-1.38x the frames/s,
+            less accurate).
+        depth_prior: spring holding a free root's distance along each camera's ray at the
+            prediction, times the root translation's mean stiffness (0: off; it saved no
+            lost track).
+        upright, up: spring keeping along ``up`` (world, default +y) the free root's axis
+            that is so at ``q0``, times the root rotation's mean stiffness (0: off).
+            0.1 for upright subjects seen by one camera: a lost full body tracked to
+            3-4.6 % (docs/tracking.md, upright prior).
+        rest_prior: spring pulling every joint, not the root, towards the spec's rest
+            pose, times the joints' mean stiffness (0: off).  0.01 for subjects near rest
+            seen by one camera: joint error 10.6° -> 8.2° (docs/tracking.md, rest prior).
+        limb_search, limb_search_drop: when the fit falls more than the drop below the
+            running fit, try every limb (:func:`limb_joints`) swung the other way or put
+            back at rest below its first joint, and twin limbs exchanged; keep the best
+            if it fits better (one camera: also after twins cross).  On (None too;
+            one-camera walk 2.6 % -> 1.9 %).  0.03 for segmented masks; negative: every
+            frame (docs/tracking.md, limb search).
+        limb_hypothesis, limb_hypothesis_drop: on a smaller fall, beyond this drop,
+            track the best candidate as an alternative instead (None: with one camera and
+            the limb search): the hand's worst seed 10.1 % -> 4.4 %.
     """
 
     def __init__(
