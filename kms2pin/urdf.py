@@ -17,6 +17,7 @@ the spec's default angles are the SRDF group state "rest".
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -63,7 +64,7 @@ def joint_origin(system: System, joint: Joint) -> tuple[np.ndarray, np.ndarray]:
     return a_ij, R
 
 
-def ellipsoid_mass(semi_axes) -> tuple[float, np.ndarray]:
+def ellipsoid_mass(semi_axes: Sequence[float]) -> tuple[float, np.ndarray]:
     """Mass and diagonal inertia (about the centre, body axes) of a solid ellipsoid."""
     a, b, c = semi_axes
     m = DENSITY * 4.0 / 3.0 * math.pi * a * b * c

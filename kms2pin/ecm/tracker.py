@@ -464,7 +464,7 @@ class Tracker:
                 )
 
     # ------------------------------------------------------------------ checks
-    def visible_bodies(self, q=None, cameras: Sequence[Camera] | None = None) -> list[int]:
+    def visible_bodies(self, q: np.ndarray | None = None, cameras: Sequence[Camera] | None = None) -> list[int]:
         """Indices of bodies whose inner silhouette falls in at least one camera."""
         poses = self.robot.body_poses(self.q if q is None else q)
         cams = self.cameras if cameras is None else cameras
@@ -488,7 +488,7 @@ class Tracker:
             out.append(m)
         return out
 
-    def fit(self, q, masks, source: str = "frame") -> float:
+    def fit(self, q: np.ndarray, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame") -> float:
         """The silhouette fit at ``q``: the intersection over union of the model's inner
         ellipsoids (at the tracker's current body sizes) with ``masks``, pooled over
         every camera, as :attr:`FrameResult.fit` reports it for a frame that every camera
@@ -556,7 +556,9 @@ class Tracker:
             dq[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
         return float(dq.max()) if len(dq) else 0.0
 
-    def calibrate(self, masks, source: str = "frame", q=None) -> np.ndarray:
+    def calibrate(
+        self, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame", q: np.ndarray | None = None
+    ) -> np.ndarray:
         """Fit every body's semi-axes to ``masks`` with the configuration held at ``q``
         (default: the current pose, i.e. ``q0`` before the first frame).
 
@@ -657,7 +659,7 @@ class Tracker:
 
     def e_step(
         self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float, cameras: Sequence[Camera] | None = None
-    ):
+    ) -> tuple[list[pin.SE3], list[list[BodyView]]]:
         """E-step at ``q``: each body's sharp silhouette in every camera, their union,
         and for every body its :class:`BodyView` per camera (mask, what the other bodies
         explain, inlier weights).  ``masks`` are bool, or float64 fractions (binned);
@@ -931,7 +933,7 @@ class Tracker:
         d = Ru - self.up
         return 0.5 * k * float(d @ d)
 
-    def step(self, masks, source: str = "frame") -> FrameResult:
+    def step(self, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame") -> FrameResult:
         """Track one frame: ``masks`` is one (H, W) mask per camera (bool or 0/1).
 
         A frame whose masks are all empty keeps the last pose and is flagged
@@ -1304,7 +1306,9 @@ class Tracker:
                 out = (qc, fc, name)
         return out
 
-    def swing_limbs(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float, str]:
+    def swing_limbs(
+        self, q: np.ndarray, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame"
+    ) -> tuple[np.ndarray, float, str]:
         """The limb search of ``limb_search`` on one frame: ECM from ``q`` (as
         :meth:`refine`), then every limb swung the other way or put back at rest below
         its first joint, and every pair of twin limbs exchanged; the tracker is left as
@@ -1331,7 +1335,9 @@ class Tracker:
             cap[:3] = np.degrees(self.max_prediction) * 0.01 * self.robot.height
         return np.clip(v, -cap, cap)
 
-    def refine(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float]:
+    def refine(
+        self, q: np.ndarray, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame"
+    ) -> tuple[np.ndarray, float]:
         """ECM on one frame's ``masks`` from ``q`` (a frame's iterations, no prediction,
         no alternative hypotheses), leaving the tracker as it was; returns the
         configuration and its fit (IoU).  E.g. to compare a pose found by a search with
@@ -1355,7 +1361,7 @@ class Tracker:
         finally:
             self.cameras = saved
 
-    def restart(self, q0) -> None:
+    def restart(self, q0: np.ndarray) -> None:
         """Go on from ``q0`` as from a first frame's pose (no velocity, no alternative
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""

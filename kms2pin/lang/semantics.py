@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -248,7 +249,7 @@ class Analyzer:
         inertial = {n: self.freeze_bvec(b) for n, b in self.inertial.items()}
         return ModelSpec(tuple(systems), inertial, self.path)
 
-    def exec_block(self, stmts, scope: _Scope, ctx: _Ctx) -> None:
+    def exec_block(self, stmts: Iterable[A.Node], scope: _Scope, ctx: _Ctx) -> None:
         for s in stmts:
             try:
                 self.exec(s, scope, ctx)
@@ -959,7 +960,9 @@ class Analyzer:
         return System(sb.name, tuple(bodies), tuple(out_joints), sb.loc)
 
     @staticmethod
-    def tree_path(adjacency, a, b) -> list:
+    def tree_path(
+        adjacency: Mapping[str | None, Iterable[tuple[str | None, _JointB]]], a: str | None, b: str | None
+    ) -> list:
         prev = {a: a}
         queue = deque([a])
         while queue:

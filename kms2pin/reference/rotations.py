@@ -13,6 +13,8 @@ re-derives the conventions so that it can check them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 #: Entries of a computed alignment matrix below this are set to exactly zero, so the
@@ -20,13 +22,13 @@ import numpy as np
 CLEAN_TOL = 1e-15
 
 
-def skew(v) -> np.ndarray:
+def skew(v: np.ndarray | Sequence[float]) -> np.ndarray:
     """The cross-product matrix ṽ of eq. 2.3 (ṽ x = v × x)."""
     v = np.asarray(v, dtype=float)
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def axis_angle_matrix(axis, angle: float) -> np.ndarray:
+def axis_angle_matrix(axis: np.ndarray | Sequence[float], angle: float) -> np.ndarray:
     """Eq. 2.4: rotation by ``angle`` (radians, right-handed) about unit ``axis``."""
     v1, v2, v3 = np.asarray(axis, dtype=float)
     c, s = np.cos(angle), np.sin(angle)
@@ -40,13 +42,13 @@ def axis_angle_matrix(axis, angle: float) -> np.ndarray:
     )
 
 
-def axis_angle_quat(axis, angle: float) -> np.ndarray:
+def axis_angle_quat(axis: np.ndarray | Sequence[float], angle: float) -> np.ndarray:
     """Eq. 2.5: Euler parameters [cos(θ/2), v sin(θ/2)]."""
     v = np.asarray(axis, dtype=float)
     return np.concatenate([[np.cos(angle / 2.0)], v * np.sin(angle / 2.0)])
 
 
-def quat_to_matrix(theta) -> np.ndarray:
+def quat_to_matrix(theta: np.ndarray | Sequence[float]) -> np.ndarray:
     """Eq. 2.7: the rotation matrix (body -> world) of Euler parameters θ0..θ3."""
     t0, t1, t2, t3 = np.asarray(theta, dtype=float)
     return np.array(
@@ -58,7 +60,7 @@ def quat_to_matrix(theta) -> np.ndarray:
     )
 
 
-def matrix_to_quat(R) -> np.ndarray:
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     """Unit Euler parameters θ with ``quat_to_matrix(θ) == R`` (Shepperd's method).
 
     Picks the largest of 4θ0², 4θ1², 4θ2², 4θ3² (from the trace and the diagonal) to
@@ -91,7 +93,7 @@ def matrix_to_quat(R) -> np.ndarray:
     return q
 
 
-def perpendicular_axis(v) -> np.ndarray:
+def perpendicular_axis(v: np.ndarray | Sequence[float]) -> np.ndarray:
     """v × e_k / |v × e_k| for the basis vector e_k least aligned with v (lowest k on ties)."""
     v = np.asarray(v, dtype=float)
     k = int(np.argmin(np.abs(v)))
@@ -101,7 +103,7 @@ def perpendicular_axis(v) -> np.ndarray:
     return w / np.linalg.norm(w)
 
 
-def alignment_matrix(o_parent, o_child) -> np.ndarray:
+def alignment_matrix(o_parent: np.ndarray | Sequence[float], o_child: np.ndarray | Sequence[float]) -> np.ndarray:
     """Eq. 2.12: R_align with ``R_align @ o_child == o_parent``.
 
     Axis (o_child × o_parent)/|·|, angle acos(o_parent · o_child) (computed as
@@ -124,7 +126,9 @@ def alignment_matrix(o_parent, o_child) -> np.ndarray:
     return R
 
 
-def joint_rotation(kind: str, o_parent, o_child, angle: float = 0.0) -> np.ndarray:
+def joint_rotation(
+    kind: str, o_parent: np.ndarray | Sequence[float], o_child: np.ndarray | Sequence[float], angle: float = 0.0
+) -> np.ndarray:
     """R_ij of eq. 2.16 (revolute: Rot(o_parent, angle) R_align) or R_align (fixed)."""
     Ra = alignment_matrix(o_parent, o_child)
     if kind == "fixed":

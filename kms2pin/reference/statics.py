@@ -57,7 +57,7 @@ def _as_targets(targets, n: int | None = None) -> np.ndarray:
     return t
 
 
-def stiffness_matrix(stiffness, n: int) -> np.ndarray:
+def stiffness_matrix(stiffness: float | np.ndarray, n: int) -> np.ndarray:
     """Broadcast a scalar, (n,) or (n, 7) stiffness to (n, 7); k >= 0, finite."""
     k = np.asarray(stiffness, dtype=float)
     if k.ndim == 0:
@@ -71,7 +71,7 @@ def stiffness_matrix(stiffness, n: int) -> np.ndarray:
     return k
 
 
-def aligned_targets(q, targets) -> np.ndarray:
+def aligned_targets(q: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """``targets`` with each body's Euler parameters negated where θ'·θ < 0 (θ from ``q``)."""
     q = np.asarray(q, dtype=float).reshape(-1, 7)
     t = np.array(targets, dtype=float).reshape(-1, 7)
@@ -80,7 +80,7 @@ def aligned_targets(q, targets) -> np.ndarray:
     return t
 
 
-def spring_forces(q, targets, stiffness) -> np.ndarray:
+def spring_forces(q: np.ndarray, targets: np.ndarray, stiffness: float | np.ndarray) -> np.ndarray:
     """F_i[j] = k_ij (q'_i[j] - q_i[j]) (eq. 2.33) with aligned targets, shape (n, 7)."""
     q = np.asarray(q, dtype=float).reshape(-1, 7)
     t = _as_targets(targets, q.shape[0])
@@ -88,7 +88,7 @@ def spring_forces(q, targets, stiffness) -> np.ndarray:
     return k * (aligned_targets(q, t) - q)
 
 
-def energy(q, targets, stiffness) -> float:
+def energy(q: np.ndarray, targets: np.ndarray, stiffness: float | np.ndarray) -> float:
     """E(q) = ½ Σ k_ij (q'_ij - q_ij)² with aligned targets."""
     q = np.asarray(q, dtype=float).reshape(-1, 7)
     t = _as_targets(targets, q.shape[0])
@@ -100,7 +100,9 @@ def _energy_fast(q: np.ndarray, t: np.ndarray, k: np.ndarray) -> float:
     return 0.5 * float(np.sum(k * (aligned_targets(q, t) - q.reshape(-1, 7)) ** 2))
 
 
-def equilibrium_residual(system: System, q, targets, stiffness, root: str = "spec") -> float:
+def equilibrium_residual(
+    system: System, q: np.ndarray, targets: np.ndarray, stiffness: float | np.ndarray, root: str = "spec"
+) -> float:
     """‖B_diᵀ Q‖ at ``q`` (eq. 2.28), B_di from the numerical partition at ``q``."""
     model = symbolic_model(system, root)
     Q = spring_forces(np.asarray(q, dtype=float).reshape(-1, 7), targets, stiffness).reshape(-1)
@@ -141,7 +143,7 @@ def _restore(
     return (q, c_err) if c_err < 1e-12 else (None, c_err)
 
 
-def project(model: SymbolicModel, q, max_iter: int = 50) -> np.ndarray:
+def project(model: SymbolicModel, q: np.ndarray, max_iter: int = 50) -> np.ndarray:
     """Nearest-ish valid configuration: Gauss-Newton q <- q - C_q⁺ C(q) on all coordinates."""
     q = np.asarray(q, dtype=float).reshape(-1).copy()
     for _ in range(max_iter):
@@ -154,9 +156,9 @@ def project(model: SymbolicModel, q, max_iter: int = 50) -> np.ndarray:
 
 def solve_equilibrium(
     system: System,
-    q0,
-    targets,
-    stiffness,
+    q0: np.ndarray,
+    targets: np.ndarray,
+    stiffness: float | np.ndarray,
     root: str = "spec",
     tol: float = 1e-12,
     max_iter: int = 200,

@@ -20,12 +20,14 @@ so C_q is linear in q and the second derivatives are constants.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 import scipy.linalg
 import sympy as sp
+from sympy.polys.rings import PolyElement
 
 from ..model import System
 from .kinematics import check_root
@@ -35,7 +37,9 @@ COORDINATE_NAMES = ("mu_x", "mu_y", "mu_z", "theta0", "theta1", "theta2", "theta
 AXES = "xyz"
 
 
-def quat_matrix(t0, t1, t2, t3) -> list[list]:
+def quat_matrix(
+    t0: sp.Expr | PolyElement, t1: sp.Expr | PolyElement, t2: sp.Expr | PolyElement, t3: sp.Expr | PolyElement
+) -> list[list]:
     """Eq. 2.7 as nested lists; works for SymPy symbols and for polynomial-ring elements."""
     return [
         [1 - 2 * t2**2 - 2 * t3**2, 2 * (t1 * t2 - t0 * t3), 2 * (t1 * t3 + t0 * t2)],
@@ -213,7 +217,7 @@ class SymbolicModel:
         """``sympy.cse`` of the :attr:`jacobian_entries` expressions."""
         return sp.cse([e for _, _, e in self.jacobian_entries], symbols=sp.numbered_symbols("t"))
 
-    def lambdified(self):
+    def lambdified(self) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
         """(C, C_q) numeric callables made by ``sympy.lambdify`` from :attr:`constraints`
         and :attr:`jacobian_entries` (built once, then cached); for cross-checks."""
         if "_lambdified" not in self.__dict__:
@@ -247,12 +251,12 @@ class SymbolicModel:
     def _ext(self, q) -> np.ndarray:
         return np.append(self._flat(q), 1.0)
 
-    def C(self, q) -> np.ndarray:
+    def C(self, q: np.ndarray) -> np.ndarray:
         """C(q), shape (nc,)."""
         x = self._ext(q)
         return np.bincount(self._c_rows, self._c_coef * x[self._c_a] * x[self._c_b], minlength=self.nc)
 
-    def C_q(self, q) -> np.ndarray:
+    def C_q(self, q: np.ndarray) -> np.ndarray:
         """C_q(q) = dC/dq, shape (nc, 7n)."""
         x = self._ext(q)
         vals = np.bincount(self._j_ent, self._j_coef * x[self._j_a] * x[self._j_b], minlength=len(self._jrows))
@@ -260,14 +264,14 @@ class SymbolicModel:
         out[self._jrows, self._jcols] = vals
         return out
 
-    def constraint_hessian(self, q, lam) -> np.ndarray:
+    def constraint_hessian(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """Σ_r lam_r ∂²C_r/∂q², shape (7n, 7n) (constant in q for these constraints)."""
         lam = np.asarray(lam, dtype=float)
         out = np.zeros((self.nq, self.nq))
         np.add.at(out, (self._hi, self._hk), self._hc * lam[self._hr])
         return out
 
-    def partition(self, q, Cq: np.ndarray | None = None) -> Partition:
+    def partition(self, q: np.ndarray, Cq: np.ndarray | None = None) -> Partition:
         """Numerical coordinate partitioning q = [q_I, q_D] (eq. 2.24) at ``q``.
 
         QR with column pivoting of C_q picks the ``nq - dof`` best-conditioned columns
@@ -282,7 +286,7 @@ class SymbolicModel:
         ind = np.sort(piv[self.n_dependent :])
         return Partition(ind, dep)
 
-    def B_di(self, q, partition: Partition | None = None, rtol: float = 1e-10) -> np.ndarray:
+    def B_di(self, q: np.ndarray, partition: Partition | None = None, rtol: float = 1e-10) -> np.ndarray:
         """B_di (7n x dof) of eq. 2.32 at ``q``: δq = B_di δq_I.
 
         Rows of the independent coordinates are I, rows of the dependent ones are
@@ -293,7 +297,9 @@ class SymbolicModel:
         B, _, _ = self.B_di_and_pinv(q, partition, rtol)
         return B
 
-    def B_di_and_pinv(self, q, partition: Partition | None = None, rtol: float = 1e-10, Cq=None):
+    def B_di_and_pinv(
+        self, q: np.ndarray, partition: Partition | None = None, rtol: float = 1e-10, Cq: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, Partition]:
         """(B_di, C_qd⁺, partition) at ``q``."""
         if Cq is None:
             Cq = self.C_q(q)

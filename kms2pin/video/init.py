@@ -29,6 +29,7 @@ import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -243,7 +244,9 @@ def initial_pose_details(
     return InitResult(best[3], float(best[0]), best[1], best[2], coarse)
 
 
-def initial_pose(robot: Robot, cameras, masks, **kw) -> np.ndarray:
+def initial_pose(
+    robot: Robot, cameras: Camera | Sequence[Camera], masks: np.ndarray | Sequence[np.ndarray], **kw: Any
+) -> np.ndarray:
     """A starting configuration for ``robot`` (root="free") from one frame's masks
     (one per camera): placement, coarse root-rotation search, ECM refinement
     (module docstring).  Keyword arguments as :func:`initial_pose_details`."""

@@ -115,6 +115,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -530,7 +531,7 @@ def segment_frames(
     method: str = DEFAULT_METHOD,
     learn_frames: int = 30,
     learn_from: str = "spread",
-    **kwargs,
+    **kwargs: Any,
 ) -> Iterator[np.ndarray]:
     """Figure-ground masks ``(H, W)`` bool, one per frame, in order.
 

@@ -7,6 +7,7 @@ Used by the tests and by ``benchmarks/video.py``; the ground truth is exact
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -16,6 +17,7 @@ import pinocchio as pin
 
 from ..ecm.camera import Camera
 from ..ecm.raycast import render_labels
+from ..robot import Robot
 
 # BGR body colours: saturated, so that they are not mistaken for (grey) shadows
 PALETTE = np.array(
@@ -61,7 +63,7 @@ class SyntheticVideo:
     camera: Camera
 
 
-def diagonal_walk(robot, frames: int, stride: int = 2, length: float = 3.0) -> np.ndarray:
+def diagonal_walk(robot: Robot, frames: int, stride: int = 2, length: float = 3.0) -> np.ndarray:
     """Configurations (frames, nq) of a free-root model walking ``length`` units along
     world (1, 0, -1)/√2 through its rest position, turning to face that way over the
     first half second: the ``walk`` motion's joint angles (every ``stride``-th frame of
@@ -88,7 +90,7 @@ def diagonal_walk(robot, frames: int, stride: int = 2, length: float = 3.0) -> n
 
 
 def walking_video(
-    robot,
+    robot: Robot,
     camera: Camera,
     frames: int = 60,
     seed: int = 0,
@@ -150,7 +152,7 @@ def walking_video(
     return SyntheticVideo(out, masks, camera)
 
 
-def write_video(path, frames: Sequence[np.ndarray], fps: float = 30.0) -> None:
+def write_video(path: str | os.PathLike, frames: Sequence[np.ndarray], fps: float = 30.0) -> None:
     """Write BGR frames with cv2.VideoWriter: ``.avi`` as MJPG, anything else as ``mp4v``."""
     h, w = frames[0].shape[:2]
     fourcc = cv2.VideoWriter_fourcc(*("MJPG" if str(path).lower().endswith(".avi") else "mp4v"))

@@ -13,11 +13,13 @@ import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..ecm.camera import Camera
 from ..errors import InputDataError
+from ..robot import Robot
 from .io import open_frames
 from .segmentation import StaticForegroundWarning, segment_frames
 
@@ -40,7 +42,7 @@ def segment_videos(
     cameras: Sequence[Camera],
     camera_names: Sequence[str] | None = None,
     method: str = "mog2",
-    **segment_kw,
+    **segment_kw: Any,
 ) -> tuple[list[list[np.ndarray]], list[str]]:
     """Masks (per camera, per frame; all cut to the shortest video) and notes for the user.
 
@@ -85,7 +87,7 @@ def segment_videos(
     return per_cam, notes
 
 
-def plot_joint_angles(robot, q: np.ndarray, path: str | os.PathLike, frames: Sequence[int] | None = None,
+def plot_joint_angles(robot: Robot, q: np.ndarray, path: str | os.PathLike, frames: Sequence[int] | None = None,
                       title: str | None = None) -> Path:
     """PNG of every revolute joint angle (degrees) over the frame number, one line each,
     the legend outside the axes (matplotlib, Agg backend)."""

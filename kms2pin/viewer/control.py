@@ -144,7 +144,7 @@ class JointControl:
             self._apply(q)
             return q.copy()
 
-    def set_configuration(self, q) -> None:
+    def set_configuration(self, q: np.ndarray) -> None:
         self._apply(self.robot._check_q(q).copy())
 
     def reset(self) -> np.ndarray:

@@ -51,13 +51,13 @@ def _format(deg: float) -> str:
     return "0" if s in ("-0", "") else s
 
 
-def joint_angles_deg(robot: Robot, q) -> dict[str, float]:
+def joint_angles_deg(robot: Robot, q: np.ndarray) -> dict[str, float]:
     """Revolute joint angles of ``q`` in degrees, in ``q`` order."""
     q = np.asarray(q, dtype=float)
     return {j.name: float(np.degrees(q[j.idx_q])) for j in revolute_joints(robot)}
 
 
-def pose_string(robot: Robot, q) -> str:
+def pose_string(robot: Robot, q: np.ndarray) -> str:
     """``q`` as a ``--pose`` string, every revolute joint, degrees rounded to 0.001."""
     return " ".join(f"{n}={_format(d)}" for n, d in joint_angles_deg(robot, q).items())
 
@@ -70,7 +70,7 @@ def _tokens(pose: str | Iterable[str]) -> list[str]:
     return out
 
 
-def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q=None) -> np.ndarray:
+def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q: np.ndarray | None = None) -> np.ndarray:
     """Apply ``name=deg`` assignments to ``q`` (default: the rest pose); returns a new q.
 
     ``pose`` is one string (``"a=10 b=-20"``, also comma separated) or several.

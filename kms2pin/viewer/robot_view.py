@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -35,7 +36,7 @@ def close_visualizer(vis: meshcat.Visualizer | None) -> None:
 
 
 @contextmanager
-def visualizer(serve: bool = True):
+def visualizer(serve: bool = True) -> Iterator[meshcat.Visualizer]:
     """``with visualizer() as vis:`` -- a fresh server, always shut down."""
     vis = new_visualizer(serve)
     try:
@@ -112,7 +113,7 @@ class RobotView:
         """The meshcat page, or None without a server."""
         return self.vis.window.web_url
 
-    def set_configuration(self, q) -> None:
+    def set_configuration(self, q: np.ndarray) -> None:
         """Move the bodies to ``q`` (one set_transform per body)."""
         self.drawing.set_configuration(self.robot._check_q(q))
 
@@ -151,13 +152,13 @@ class RobotView:
         self.close()
 
 
-def show(robot: Robot, q=None, vis: meshcat.Visualizer | None = None, camera: str = "front",
+def show(robot: Robot, q: np.ndarray | None = None, vis: meshcat.Visualizer | None = None, camera: str = "front",
          aspect: float = 1.0) -> RobotView:
     """Draw ``robot`` at ``q`` (server-less unless ``vis`` is given)."""
     return RobotView(robot, q, vis, camera=camera, aspect=aspect)
 
 
-def check_trajectory(robot: Robot, trajectory) -> np.ndarray:
+def check_trajectory(robot: Robot, trajectory: np.ndarray) -> np.ndarray:
     traj = np.asarray(trajectory, dtype=float)
     if traj.ndim != 2 or traj.shape[1] != robot.nq or traj.shape[0] < 1:
         raise ViewerError(f"trajectory must have shape (T, {robot.nq}) with T >= 1, not {traj.shape}")

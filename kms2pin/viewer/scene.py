@@ -35,12 +35,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import meshcat
 import meshcat.geometry as g
 import numpy as np
 import pinocchio as pin
 
+from ..model import Joint
 from ..robot import Robot
 from ..urdf import INNER_RGBA, OUTER_RGBA
 from .errors import ViewerError
@@ -92,13 +94,13 @@ class OnTopMesh(g.Mesh):
 
     RENDER_ORDER = 10
 
-    def lower(self):
+    def lower(self) -> dict[str, Any]:
         data = super().lower()
         data["object"]["renderOrder"] = self.RENDER_ORDER
         return data
 
 
-def mesh(geometry, rgba, on_top: bool = False) -> g.Mesh:
+def mesh(geometry: g.Geometry, rgba: Sequence[float], on_top: bool = False) -> g.Mesh:
     """A meshcat object: ``geometry`` with :func:`material` ``rgba``."""
     return (OnTopMesh if on_top else g.Mesh)(geometry, material(rgba, on_top))
 
@@ -123,7 +125,8 @@ def rotation_y_to(direction: Sequence[float]) -> np.ndarray:
     return pin.Quaternion.FromTwoVectors(y, d).matrix()
 
 
-def set_arrow(vis: meshcat.Visualizer, start, end, radius: float, rgba, head: float = 3.0,
+def set_arrow(vis: meshcat.Visualizer, start: np.ndarray | Sequence[float], end: np.ndarray | Sequence[float],
+              radius: float, rgba: Sequence[float], head: float = 3.0,
               on_top: bool = False) -> bool:
     """Draw an arrow (cylinder + cone) from ``start`` to ``end`` under ``vis``'s path,
     as the objects ``shaft`` and ``head``.  Returns False (nothing drawn) for a
@@ -179,7 +182,8 @@ def extent_along(M: pin.SE3, radii: Sequence[float], direction: Sequence[float])
     return c - h, c + h
 
 
-def projected_box(robot: Robot, q, right, up, which: str = "inner") -> tuple[float, float, float, float]:
+def projected_box(robot: Robot, q: np.ndarray, right: np.ndarray | Sequence[float], up: np.ndarray | Sequence[float],
+                  which: str = "inner") -> tuple[float, float, float, float]:
     """Orthographic bounding box (right_min, right_max, up_min, up_max) of the robot's
     inner (or outer) ellipsoids at ``q`` along two view directions."""
     lo_r = lo_u = np.inf
@@ -269,7 +273,7 @@ def plain_background(vis: meshcat.Visualizer) -> None:
     vis["/Axes"].set_property("visible", False)
 
 
-def model_size(robot: Robot, q=None) -> float:
+def model_size(robot: Robot, q: np.ndarray | None = None) -> float:
     """Largest side of the outer ellipsoids' bounding box (for arrow sizes)."""
     q = robot.q_rest if q is None else q
     pts = np.vstack([ellipsoid_points(M, robot.outer(n)) for n, M in zip(robot.bodies, robot.body_poses(q))])
@@ -318,7 +322,7 @@ class ModelDrawing:
     def axis_length(self) -> float:
         return 0.12 * self.size
 
-    def root_joint(self):
+    def root_joint(self) -> Joint | None:
         return self.robot.system.joints[0] if self.robot.system.joints[0].parent is None else None
 
     def anchor_point(self) -> np.ndarray:
@@ -326,7 +330,7 @@ class ModelDrawing:
         return np.asarray(j.parent_bvec.pos, float) + self.offset
 
     # ---------------------------------------------------------------- drawing
-    def draw(self, q=None) -> ModelDrawing:
+    def draw(self, q: np.ndarray | None = None) -> ModelDrawing:
         """Upload the geometry and pose it at ``q`` (default: rest)."""
         robot, vis = self.robot, self.vis
         inner_mat = material(self.inner_rgba)
@@ -359,7 +363,7 @@ class ModelDrawing:
         self.set_configuration(robot.q_rest if q is None else q)
         return self
 
-    def transforms(self, q) -> dict[str, np.ndarray]:
+    def transforms(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """``set_transform`` matrices per body path at ``q`` (offset included)."""
         out = {}
         for body, M in zip(self.robot.bodies, self.robot.body_poses(q)):
@@ -368,7 +372,7 @@ class ModelDrawing:
             out[self.body_path(body)] = T
         return out
 
-    def set_configuration(self, q) -> None:
+    def set_configuration(self, q: np.ndarray) -> None:
         """Move every body to ``q`` (one ``set_transform`` per body, no geometry)."""
         q = np.array(q, dtype=float)
         for path, T in self.transforms(q).items():
@@ -376,7 +380,7 @@ class ModelDrawing:
             self.transform_log.append((path, T))
         self.q = q
 
-    def frame_points(self, q=None) -> np.ndarray:
+    def frame_points(self, q: np.ndarray | None = None) -> np.ndarray:
         """Points to frame: the outer (or inner) ellipsoids, axes and anchor at ``q``."""
         q = self.q if q is None else q
         pts = [ellipsoid_points(M, self.robot.outer(n) if self.outer else self.robot.inner(n)) + self.offset
@@ -389,7 +393,7 @@ class ModelDrawing:
         self.vis[self.path].delete()
 
 
-def draw_world_axes(vis: meshcat.Visualizer, origin, length: float, radius: float) -> None:
+def draw_world_axes(vis: meshcat.Visualizer, origin: np.ndarray | Sequence[float], length: float, radius: float) -> None:
     """Three arrows along world x (red), y (green), z (blue) from ``origin``."""
     origin = np.asarray(origin, float)
     for k, rgba in enumerate(WORLD_AXES_RGBA):
@@ -399,7 +403,7 @@ def draw_world_axes(vis: meshcat.Visualizer, origin, length: float, radius: floa
 
 
 def draw_springs(vis: meshcat.Visualizer, path: str, starts: dict[str, np.ndarray],
-                 ends: dict[str, np.ndarray], radius: float, rgba=SPRING_RGBA) -> list[str]:
+                 ends: dict[str, np.ndarray], radius: float, rgba: Sequence[float] = SPRING_RGBA) -> list[str]:
     """Red arrows ``starts[b] -> ends[b]`` for every body in ``ends``; returns their paths
     (bodies whose two points coincide get no arrow)."""
     drawn = []

@@ -21,6 +21,7 @@ from meshcat.animation import Animation
 
 from ..errors import TargetError
 from ..robot import Robot
+from ..virtual_work import StaticUpdateResult
 from .robot_view import new_visualizer
 from .scene import (
     INTERMEDIATE_RGBA,
@@ -41,7 +42,7 @@ from .scene import (
 LAYOUTS = ("side-by-side", "animation")
 
 
-def target_poses(robot: Robot, targets) -> dict[str, pin.SE3]:
+def target_poses(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray]) -> dict[str, pin.SE3]:
     """Targets as ``{body: world_T_body}``: from a dict of SE3 / 7-vectors / 4x4, or an
     ``(n_bodies, 7)`` array of maximal coordinates ``[mu, theta0..theta3]``
     (Euler parameters scalar first, normalised here)."""
@@ -125,7 +126,9 @@ def _draw_springs(vis, path: str, starts: dict[str, np.ndarray], ends: dict[str,
     return paths
 
 
-def draw_static_update(robot: Robot, q_before, targets, result, vis: meshcat.Visualizer | None = None, *,
+def draw_static_update(robot: Robot, q_before: np.ndarray,
+                       targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray],
+                       result: StaticUpdateResult | np.ndarray, vis: meshcat.Visualizer | None = None, *,
                        camera: str = "front", layout: str = "side-by-side", aspect: float = 2.0,
                        joint_axes: bool = False) -> StaticUpdateDrawing:
     """Draw a static update (see the module docstring); returns what was drawn.
@@ -186,7 +189,9 @@ def draw_static_update(robot: Robot, q_before, targets, result, vis: meshcat.Vis
     return drawing
 
 
-def show_static_update(robot: Robot, q_before, targets, result, vis: meshcat.Visualizer | None = None, *,
+def show_static_update(robot: Robot, q_before: np.ndarray,
+                       targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray],
+                       result: StaticUpdateResult | np.ndarray, vis: meshcat.Visualizer | None = None, *,
                        camera: str = "front", layout: str = "side-by-side", aspect: float = 2.0,
                        joint_axes: bool = False) -> meshcat.Visualizer:
     """Draw a static update like the thesis figures and return the Visualizer.
