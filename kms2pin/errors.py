@@ -59,8 +59,9 @@ class ExportError(Kms2pinError):
     """Writing URDF/SRDF/meshes failed (e.g. the output directory is not writable)."""
 
 
-class RobotError(Kms2pinError):
-    """A request to a loaded robot names something it does not have."""
+class RobotError(Kms2pinError, ValueError):
+    """A request to a loaded robot names something it does not have, or passes a
+    configuration it cannot use (wrong shape, not finite, a zero root quaternion)."""
 
 
 class TargetError(Kms2pinError, ValueError):

@@ -541,6 +541,8 @@ def test_a_non_finite_configuration_is_refused_naming_the_first_bad_coordinate_a
     for call in q_methods(robot, q).values():
         with pytest.raises(kms2pin.RobotError, match=rf"^q\[{knee}\] \(joint 'rightShin_knee'\)"):
             call()
+    with pytest.raises(ValueError):  # what code catching bad arguments expects, as for OptionError
+        robot.body_poses(q)
 
 
 def test_a_zero_root_quaternion_is_refused():
