@@ -3,67 +3,44 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from ..lang import parse_text, read_spec
 from ..model import ModelSpec
 
 
-def _number(text: str, kind: type) -> float | int:
-    try:
-        value = kind(text)
-    except ValueError:
-        what = "a whole number" if kind is int else "a number"
-        raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
-    return value
-
-
-def count(text: str) -> int:
-    """argparse type: a whole number >= 0."""
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got '{text}'")
-    return value
-
-
-def positive_count(text: str) -> int:
-    """argparse type: a whole number >= 1."""
-    value = _number(text, int)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got '{text}'")
-    return value
-
-
-def non_negative(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    value = _number(text, float)
-    if not 0.0 <= value < float("inf"):  # also rejects nan
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got '{text}'")
-    return value
-
-
-def positive(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    value = _number(text, float)
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got '{text}'")
-    return value
-
-
-def in_range(lo: float, hi: float, hi_open: bool = False, lo_open: bool = False):
-    """argparse type: a number in [lo, hi] (brackets open as asked)."""
+def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, lo_open: bool = False,
+           hi_open: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number (``whole``: an integer) in [lo, hi], brackets open
+    as asked; the message says the range as ">= lo" when there is no upper bound."""
+    word = "a whole number" if whole else "a number"
+    if hi == math.inf:
+        bound = f"{'>' if lo_open else '>='} {lo:g}"
+    else:
+        bound = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
 
     def parse(text: str) -> float:
-        value = _number(text, float)
-        ok = (lo < value if lo_open else lo <= value) and (value < hi if hi_open else value <= hi)
-        if not ok:
-            interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-            raise argparse.ArgumentTypeError(f"expected a number in {interval}, got '{text}'")
+        try:
+            value = int(text) if whole else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {word}, got '{text}'") from None
+        above = lo < value if lo_open else lo <= value
+        below = value < hi if hi_open or hi == math.inf else value <= hi  # also rejects inf and nan
+        if not (above and below):
+            raise argparse.ArgumentTypeError(f"expected {word} {bound}, got '{text}'")
         return value
 
     return parse
+
+
+count = number(0, whole=True)  # a whole number >= 0
+positive_count = number(1, whole=True)  # a whole number >= 1
+non_negative = number(0.0)  # a finite number >= 0
+positive = number(0.0, lo_open=True)  # a finite number > 0
 
 
 class Once(argparse.Action):

@@ -24,7 +24,7 @@ from pathlib import Path
 from ..errors import CameraError
 from ..video.calibration import DISTORTION_MODELS, calibrate_chessboard, make_camera, with_pose
 from ..video.io import list_images
-from ._common import in_range, positive, positive_count, write_outputs
+from ._common import number, positive, positive_count, write_outputs
 
 NAME = "camera"
 HELP = "make a camera file from a field of view, or calibrate one from chessboard photos"
@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        description="Pinhole camera from the image size, vertical field of view and pose.")
     m.add_argument("--width", type=positive_count, required=True, help="image width in pixels")
     m.add_argument("--height", type=positive_count, required=True, help="image height in pixels")
-    m.add_argument("--fov", type=in_range(0.0, 180.0, lo_open=True, hi_open=True), required=True, metavar="DEG",
+    m.add_argument("--fov", type=number(0.0, 180.0, lo_open=True, hi_open=True), required=True, metavar="DEG",
                    help="vertical field of view (full image height) in degrees")
     _add_pose(m, "the world origin")
     c = sub.add_parser("calibrate", help="intrinsics + distortion from chessboard photos",

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from pathlib import Path
 
 from ..errors import InputDataError
@@ -40,10 +39,10 @@ from ..video.segmentation import (
     LEARN_FROM,
     METHODS,
     SegmentParams,
-    StaticForegroundWarning,
     _segment_u8,
+    static_foreground_messages,
 )
-from ._common import count, in_range, positive, positive_count
+from ._common import count, number, positive, positive_count
 
 NAME = "segment"
 HELP = "video (or image folder) -> figure-ground masks by adaptive background subtraction"
@@ -55,7 +54,8 @@ def add_lighting_arguments(p: argparse.ArgumentParser, prefix: str = "") -> None
                    help=f"{prefix}no shadow detection: pixels that are a darker copy of the background stay foreground "
                         "(default: they are shadows, i.e. background; turn it off when the subject's colours are "
                         "darker shades of the background's, e.g. light grey clothes before a white wall)")
-    p.add_argument("--shadow-threshold", type=in_range(0.0, 1.0, lo_open=True, hi_open=True), default=0.5, metavar="T",
+    p.add_argument("--shadow-threshold", type=number(0.0, 1.0, lo_open=True, hi_open=True),
+                   default=SegmentParams.shadow_threshold, metavar="T",
                    help=f"{prefix}a shadow keeps at least this fraction of the background's brightness (default "
                         "0.5, OpenCV's; 0.3 also takes deeper cast shadows for background, and with them subjects "
                         "in dark shades of the background's colours)")
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         refine_edges=not args.no_edge_refinement, compensate_gain=not args.no_gain_compensation,
     )
     params.check()
-    if args.no_shadows and args.shadow_threshold != 0.5:
+    if args.no_shadows and args.shadow_threshold != SegmentParams.shadow_threshold:
         print("note: --shadow-threshold sets the shadow test; with --no-shadows it does nothing", file=sys.stderr)
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
     out = Path(args.output)
@@ -113,8 +113,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.video}: learning the background from {params.learn_frames} frames ...", file=sys.stderr)
     n = 0
     bar = tqdm(total=source.len_hint, unit="frame", desc="segment", disable=args.no_progress, file=sys.stderr)
-    with warnings.catch_warnings(record=True) as found, bar:
-        warnings.simplefilter("always", StaticForegroundWarning)
+    with static_foreground_messages() as found, bar:
         for n, mask in enumerate(_segment_u8(source, params), start=1):
             try:
                 write_mask(out, n - 1, mask)
@@ -124,11 +123,8 @@ def run(args: argparse.Namespace) -> int:
     stale = remove_masks_from(out, n)
     if source.stopped_early:
         print(f"kms2pin segment: warning: {source.stopped_early}; masks written for those frames", file=sys.stderr)
-    for w in found:
-        if issubclass(w.category, StaticForegroundWarning):
-            print(f"kms2pin segment: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    for message in found:
+        print(f"kms2pin segment: warning: {message}", file=sys.stderr)
     extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
     print(f"{out}: {n} masks {MASK_NAME.format(0)}..{MASK_NAME.format(n - 1)}{extra}")
     return 0

@@ -23,7 +23,7 @@ from ..ecm.tracker import Trajectory
 from ..errors import Kms2pinError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
-from ._common import add_spec_argument, count, in_range, positive_count, read_model
+from ._common import add_spec_argument, count, number, positive_count, read_model
 
 NAME = "synth"
 HELP = "render synthetic silhouette masks of a moving model (for track / evaluate)"
@@ -35,8 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=positive_count, default=60, help="number of frames (default: 60)")
     p.add_argument("--cameras", metavar="CAMS.json", help="camera list (default: one Camera.default())")
     p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
-    p.add_argument("--noise", type=in_range(0.0, 1.0), default=0.0, metavar="LEVEL", help="noise level, e.g. 0.05 (default 0)")
-    p.add_argument("--size-mismatch", type=in_range(0.0, 1.0, hi_open=True), default=0.0, metavar="FRAC",
+    p.add_argument("--noise", type=number(0.0, 1.0), default=0.0, metavar="LEVEL", help="noise level, e.g. 0.05 (default 0)")
+    p.add_argument("--size-mismatch", type=number(0.0, 1.0, hi_open=True), default=0.0, metavar="FRAC",
                    help="render body sizes off by up to FRAC (e.g. 0.1)")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--seed", type=count, default=0, help="random seed (default: 0)")

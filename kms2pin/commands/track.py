@@ -36,6 +36,7 @@ from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWri
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ..video.io import remove_masks_from
+from ..video.segmentation import DEFAULT_METHOD, METHODS, SegmentParams
 from ._common import Once, add_spec_argument, count, non_negative, positive, read_model
 from .segment import add_lighting_arguments
 
@@ -59,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         '({"joints": {name: degrees}, "root": {"position": [...], "rotation": 3x3 | '
                         '"quaternion_xyzw": [...]}}) or "auto" (found from the first frame; the default with '
                         "--video; with --masks the default is the rest pose)")
-    p.add_argument("--method", choices=("mog2", "knn"), default="mog2",
+    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help="segmentation of --video (default mog2)")
     add_lighting_arguments(p, prefix="segmentation of --video: ")
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
@@ -177,9 +178,7 @@ def check_masks(per_cam: list[dict[int, Path]], numbers: list[int], cameras: lis
             if head[:8] == _PNG and head[12:16] == b"IHDR":
                 w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
                 if (h, w) != cam.shape:
-                    name = f" {cam.name}" if cam.name else ""
-                    raise InputDataError(f"{path}: frame {f}: mask is {w}x{h} but camera{name} is "
-                                         f"{cam.width}x{cam.height}")
+                    raise _size_error(path, f, w, h, cam)
             else:
                 read_mask(path, f, cam)
 
@@ -228,6 +227,12 @@ def find_frames(masks: Path, n_cameras: int) -> tuple[list[int], list[dict[int, 
     return numbers, per_cam
 
 
+def _size_error(path: Path, frame: int, width: int, height: int, camera: Camera) -> InputDataError:
+    name = f" {camera.name}" if camera.name else ""
+    return InputDataError(f"{path}: frame {frame}: mask is {width}x{height} but camera{name} is "
+                          f"{camera.width}x{camera.height}")
+
+
 def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -235,10 +240,7 @@ def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
     if img.ndim == 3:
         img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
     if img.shape != camera.shape:
-        raise InputDataError(
-            f"{path}: frame {frame}: mask is {img.shape[1]}x{img.shape[0]} but camera "
-            f"{camera.name or ''} is {camera.width}x{camera.height}".replace("camera  is", "camera is")
-        )
+        raise _size_error(path, frame, img.shape[1], img.shape[0], camera)
     scale = 255 if img.dtype == np.uint8 else np.iinfo(img.dtype).max if img.dtype.kind in "ui" else 1
     vals = np.unique(img)
     if not np.all(np.isin(vals, (0, scale))) and not np.all(np.isin(vals, (0, 1))):
@@ -287,21 +289,25 @@ def _initial_q(args, robot: Robot):
     return init.q[0]
 
 
-def _auto_init(robot: Robot, cameras, frames_masks, start: int = 0):
-    """Initial pose and its fit (IoU), from the first frame (at or after ``start``) with a non-empty mask."""
+def _first_non_empty(load, frames: int, masks_dir: Path) -> int:
+    """The first frame with a non-empty mask; InputDataError if there is none."""
+    for k in range(frames):
+        if any(m.any() for m in load(k)):
+            return k
+    raise InputDataError(f"{masks_dir}: every mask is empty: nothing to track")
+
+
+def _auto_init(robot: Robot, cameras, masks, frame: int) -> tuple[np.ndarray, float]:
+    """Initial pose and its fit (IoU), found on ``masks`` (those of ``frame``)."""
     from ..video.init import initial_pose_details
 
-    for k in range(start, len(frames_masks)):
-        masks = frames_masks[k]()
-        if any(m.any() for m in masks):
-            res = initial_pose_details(robot, cameras, masks)
-            print(f"initial pose from frame {k}: root yaw {res.yaw_deg:.0f} deg, pitch {res.pitch_deg:.0f} deg, "
-                  f"fit (IoU) {res.fit:.3f}", file=sys.stderr)
-            if res.fit < 0.5:
-                print(f"warning: the initial pose fits the first frame poorly (IoU {res.fit:.2f}); "
-                      "consider --init POSE.json", file=sys.stderr)
-            return res.q, res.fit
-    raise InputDataError("every mask is empty: nothing to track (check the segmentation in OUT/masks)")
+    res = initial_pose_details(robot, cameras, masks)
+    print(f"initial pose from frame {frame}: root yaw {res.yaw_deg:.0f} deg, pitch {res.pitch_deg:.0f} deg, "
+          f"fit (IoU) {res.fit:.3f}", file=sys.stderr)
+    if res.fit < 0.5:
+        print(f"warning: the initial pose fits the first frame poorly (IoU {res.fit:.2f}); "
+              "consider --init POSE.json", file=sys.stderr)
+    return res.q, res.fit
 
 
 def run(args: argparse.Namespace) -> int:
@@ -313,7 +319,8 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     out = Path(args.output)
     video_mode = bool(args.video)
-    if not video_mode and (args.method != "mog2" or args.no_shadows or args.shadow_threshold != 0.5
+    if not video_mode and (args.method != DEFAULT_METHOD or args.no_shadows
+                           or args.shadow_threshold != SegmentParams.shadow_threshold
                            or args.no_gain_compensation):
         print("note: --method, --no-shadows, --shadow-threshold and --no-gain-compensation set the segmentation "
               "of --video; with --masks they do nothing", file=sys.stderr)
@@ -375,10 +382,9 @@ def run(args: argparse.Namespace) -> int:
     q0 = _initial_q(args, robot)
     auto = args.init == "auto" or (video_mode and not args.init)
     init_fit = None
+    first = _first_non_empty(load, len(numbers), masks_dir)
     if auto:
-        q0, init_fit = _auto_init(robot, cameras, [lambda k=k: load(k) for k in range(len(numbers))])
-    elif not any(any(m.any() for m in load(k)) for k in range(len(numbers))):  # stops at the first non-empty
-        raise InputDataError(f"{masks_dir}: every mask is empty: nothing to track")
+        q0, init_fit = _auto_init(robot, cameras, load(first), first)
     if not video_mode:
         removed = _remove_earlier_outputs(out, len(cameras))
     if removed:

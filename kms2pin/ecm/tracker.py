@@ -1221,7 +1221,7 @@ class Tracker:
         frames, and before that it is mostly the first frame's, which the size calibration
         (or the initialization) fitted to that very frame.  Until then a fall below it says
         nothing of a limb, and an alternative hypothesis's lead nothing of the pose."""
-        return self.frame >= round(1.0 / max(self.hypothesis_smoothing, 1e-9))
+        return self.frame >= round(1.0 / self.hypothesis_smoothing)  # > 0: checked in __init__
 
     def _running_fit(self, fit: float) -> None:
         """Fold this frame's fit into the main hypothesis's running fit (exponentially

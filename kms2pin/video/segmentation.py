@@ -114,6 +114,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -126,6 +127,22 @@ from ..errors import InputDataError
 class StaticForegroundWarning(UserWarning):
     """Part of the image is foreground in nearly every frame: the background model did
     not learn it (module docstring, step 6)."""
+
+
+@contextmanager
+def static_foreground_messages() -> Iterator[list[str]]:
+    """Collect the :class:`StaticForegroundWarning` messages of the segmentation run in
+    the ``with`` block into the list it yields (filled when the block ends), for a caller
+    that prints them its own way; other warnings are shown as usual."""
+    messages: list[str] = []
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always", StaticForegroundWarning)
+        yield messages
+    for w in found:
+        if issubclass(w.category, StaticForegroundWarning):
+            messages.append(str(w.message))
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
 #: share of the frames in which a pixel must be foreground to count as static foreground
@@ -427,7 +444,6 @@ class Segmenter:
         self.frames_seen = 0
         self.reference: np.ndarray | None = None  # subsampled background, for the gain
         self.subject: np.ndarray | None = None  # subsampled last raw mask's foreground
-        self.gains = np.ones(3)  # the last frame's
         self.foreground_count: np.ndarray | None = None  # per pixel, frames segmented as foreground
 
     def _check_shape(self, frame: np.ndarray, index: int) -> None:
@@ -441,7 +457,8 @@ class Segmenter:
                 f"{self.shape[1]}x{self.shape[0]}"
             )
 
-    def _sub(self, a: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _sub(a: np.ndarray) -> np.ndarray:
         return a[::_GAIN_STEP, ::_GAIN_STEP]
 
     @staticmethod
@@ -467,8 +484,7 @@ class Segmenter:
     def segment(self, frame: np.ndarray, rate: float | None = None) -> np.ndarray:
         rate = self.rate if rate is None else rate
         if self.reference is not None:
-            self.gains = channel_gains(self._sub(frame), self.reference, self.subject)
-            frame = self._compensated(frame, self.gains)
+            frame = self._compensated(frame, channel_gains(self._sub(frame), self.reference, self.subject))
         raw = self.model.apply(frame, learningRate=rate)
         if self.reference is not None:
             self.subject = self._sub(raw) > 0
@@ -502,8 +518,8 @@ class Segmenter:
                if stats[i, cv2.CC_STAT_AREA] >= max(self.min_area or 1, 1)]
         if not big:
             return None
-        where = "; ".join(f"{stats[i, 4]} pixels around x={stats[i, 0] + stats[i, 2] // 2}, "
-                          f"y={stats[i, 1] + stats[i, 3] // 2} ({stats[i, 2]}x{stats[i, 3]})" for i in big[:3])
+        where = "; ".join(f"{area} pixels around x={x + w // 2}, y={y + h // 2} ({w}x{h})"
+                          for x, y, w, h, area in stats[big[:3]])
         more = f" and {len(big) - 3} more region(s)" if len(big) > 3 else ""
         return (f"{where}{more}: foreground in {STATIC_SHARE:.0%} or more of the {n} frames. The background "
                 "model did not learn that part of the scene (the subject stood there in the learning frames, "

@@ -10,7 +10,6 @@ is used up to its last good frame - both with a note saying so.
 from __future__ import annotations
 
 import os
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ from ..ecm.camera import Camera
 from ..errors import InputDataError
 from ..robot import Robot
 from .io import open_frames
-from .segmentation import StaticForegroundWarning, segment_frames
+from .segmentation import segment_frames, static_foreground_messages
 
 
 def frame_size(path: str | os.PathLike) -> tuple[int, int]:
@@ -65,14 +64,9 @@ def segment_videos(
     notes: list[str] = []
     for v in videos:
         src = open_frames(v)
-        with warnings.catch_warnings(record=True) as found:
-            warnings.simplefilter("always", StaticForegroundWarning)
+        with static_foreground_messages() as found:
             masks = list(segment_frames(src, method=method, **segment_kw))
-        for w in found:
-            if issubclass(w.category, StaticForegroundWarning):
-                notes.append(f"{v}: {w.message}")
-            else:
-                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        notes += [f"{v}: {m}" for m in found]
         if src.stopped_early:
             notes.append(f"{src.stopped_early}; tracking the {len(masks)} frame(s) read")
         per_cam.append(masks)
