@@ -231,19 +231,25 @@ def test_pathological_inputs_are_spec_errors(snippet):
         kms2pin.parse_text(snippet)
 
 
+TOO_LARGE = r"innerLam semi-axes must be at most 1e\+06, got \(1e\+300, 1, 1\)"
+ZERO_ORIENT = r"orient vector of 'a' of body 'b' is zero; a bound vector needs a direction"
+
+
 @pytest.mark.parametrize(
-    "inner, outer, pos, orient, angle",
+    "inner, outer, pos, orient, angle, refused",
     [
-        ("1e300, 1, 1", "1e300, 2, 2", "0, 0, 0", "1, 0, 0", "0"),
-        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0"),
-        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e300, 1e300, 1", "0"),
-        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e-300, 0, 0", "0"),
-        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0"),
-        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1, 0, 0", "1e18"),
-        ("1, 1, 1", "1, 1, 1", "0, 0, 0", "-1, 0, 0", "-1e300"),
+        ("1e300, 1, 1", "1e300, 2, 2", "0, 0, 0", "1, 0, 0", "0", TOO_LARGE),
+        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0", None),
+        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e300, 1e300, 1", "0", None),
+        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e-300, 0, 0", "0", ZERO_ORIENT),
+        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0", ZERO_ORIENT),
+        ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1, 0, 0", "1e18", None),
+        ("1, 1, 1", "1, 1, 1", "0, 0, 0", "-1, 0, 0", "-1e300", None),
     ],
 )
-def test_extreme_but_legal_numbers_compile_and_load(inner, outer, pos, orient, angle):
+def test_extreme_but_legal_numbers_compile_and_load_or_are_refused_with_a_clear_message(
+    inner, outer, pos, orient, angle, refused
+):
     text = f"""
     rigidBodySystem s {{
         ellipsoidBody b {{ innerLam({inner}); outerLam({outer});
@@ -252,13 +258,19 @@ def test_extreme_but_legal_numbers_compile_and_load(inner, outer, pos, orient, a
     bvec o {{ pos(0, 0, 0); orient(1, 0, 0); }}
     constraint revolute(s.b.a, o, {angle});
     """
-    try:
-        spec = kms2pin.parse_text(text)
-    except kms2pin.SpecError:
-        return  # rejecting absurd values with a located message is fine too
+    if refused is not None:  # absurd values: a located message naming the problem
+        with pytest.raises(kms2pin.SpecError, match=refused) as err:
+            kms2pin.parse_text(text)
+        assert str(err.value).startswith("<string>:")
+        return
+    spec = kms2pin.parse_text(text)
     o = np.array(spec.systems[0].bodies[0].bvecs["a"].orient)
     assert np.isfinite(o).all() and abs(np.linalg.norm(o) - 1) < 1e-12
+    v = np.array([float(x) for x in orient.split(",")])
+    v /= np.abs(v).max()  # scaled first: the norm of (1e300, 1e300, 1) overflows
+    np.testing.assert_allclose(o, v / np.linalg.norm(v), rtol=0, atol=1e-15)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         robot = kms2pin.load(text)
-        robot.body_poses(robot.q_rest)
+        poses = robot.body_poses(robot.q_rest)
+    assert all(np.isfinite(P.homogeneous).all() for P in poses)

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import SPECS
 
 import kms2pin
 from kms2pin import SpecError, parse_text
@@ -636,7 +637,7 @@ def test_the_four_thesis_specs_compile(spec_path):
 
 
 def test_puma_planar_linkage_uses_its_bool_parameter():
-    s = kms2pin.parse(pytest.importorskip("conftest").SPECS / "puma600.kms").systems[0]
+    s = kms2pin.parse(SPECS / "puma600.kms").systems[0]
     # PlanarLinkage link2(1.0, 0.7, 0.2, false) and link3(1.2, 0.4, 0.2, true) (Display 3.10)
     assert s.body("link2").inner == pytest.approx((0.2, 1.0, 0.7))
     assert s.body("link2").outer == pytest.approx((0.25, 1.25, 0.875))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import require_kernels
 
 from kms2pin.ecm import mstep
 from kms2pin.ecm.camera import Camera
@@ -103,8 +104,8 @@ def test_no_views_keeps_the_pose():
 def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monkeypatch):
     """grad = J^T r with J = dr/d(delta t, omega), so d(cost)/d delta = 2 grad (cost = sum r^2);
     checked by central differences of the cost, for the C kernel and the NumPy code."""
-    if native and mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    if native:
+        require_kernels()
     monkeypatch.setattr(mstep, "NATIVE", native)
     rng = np.random.default_rng(5)
     truth = _pose(rng)
@@ -123,8 +124,7 @@ def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monke
 
 
 def test_native_and_numpy_fits_agree(monkeypatch):
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     rng = np.random.default_rng(6)
     truth = _pose(rng)
     pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
@@ -171,8 +171,7 @@ def test_size_gradient_matches_finite_differences(monkeypatch):
 
 def test_native_and_numpy_size_fits_agree(monkeypatch):
     """The C size kernel (kms2pin/_kernels.c) gives fit_body_scale's sums and result."""
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     truth, views = _size_views(np.random.default_rng(12))
     out = {}
     for native in (True, False):
@@ -190,8 +189,7 @@ def test_native_and_numpy_size_fits_agree(monkeypatch):
 @pytest.mark.parametrize("max_step", [None, 0.05])
 def test_native_and_numpy_body_fits_agree(monkeypatch, max_step):
     """The C fit (kms2pin/_kernels.c) runs the same damped Gauss-Newton loop as fit_body."""
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     rng = np.random.default_rng(9)
     truth = _pose(rng)
     pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
@@ -214,8 +212,8 @@ def test_body_images_match_body_image_one_by_one(native, monkeypatch):
     the per-body path)."""
     from pathlib import Path
 
-    if native and mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    if native:
+        require_kernels()
     monkeypatch.setattr(mstep, "NATIVE", native)
 
     from kms2pin.robot import load
@@ -252,8 +250,7 @@ def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(mon
     """The C kernel vectorizes its loop over contiguous arrays (with its own exp, clamped
     at e^-40) and keeps a scalar libm loop for strided ones; both must give NumPy's sums,
     also on pixels far outside the body (h << -40) and with weights."""
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     rng = np.random.default_rng(11)
     truth = _pose(rng)
     pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
@@ -285,9 +282,7 @@ def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(mon
 
 
 def test_box_kernel_rejects_malformed_arrays_instead_of_crashing():
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
-    k = mstep._kernels
+    k = require_kernels()
     n = 3
     args = [np.zeros((n, 9)), np.zeros((n, 3)), np.ones((n, 3)), np.eye(3), np.zeros(3), np.eye(3), 0.7, 2.0, 320, 240]
     outs = [np.zeros((n, 4)), np.zeros(n), np.zeros(n)]

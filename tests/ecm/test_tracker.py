@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import require_kernels
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
@@ -186,8 +187,7 @@ def test_native_and_numpy_trackers_agree(monkeypatch, outlier, coarse):
     masks and on their 2x2 binned fractions (coarse_delta_px)."""
     from kms2pin.ecm import mstep
 
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     robot = _robot("lowerbody")
     rng = np.random.default_rng(13)
     qt = robot.random_configuration(rng, 20)
@@ -912,17 +912,22 @@ def test_with_two_cameras_a_folded_finger_gets_the_limb_search_by_default():
 def test_twin_limbs_are_tried_exchanged_after_crossing_with_one_camera_only(n_cams, monkeypatch):
     """Two views tell the arms apart after they cross: the exchange after a crossing
     (which ran on every crossing and cost the two-camera walkers 0.55-0.70x the
-    frames/s) is tried with one camera only; the search on a falling fit runs with both."""
+    frames/s) is tried with one camera only; the search on a falling fit runs with both
+    (asked for on every frame by a drop of -1, once the running fit has settled: from
+    frame 1 with a smoothing of 1; a spy stands in for it, so the test stays fast)."""
     robot = load(DIR / "anatomical" / "fullbody.kms", root="free")
     walk = make_motion(robot, "walk", 300)
     cams = _cams(robot, n_cams)
-    tr = Tracker(robot, cams, q0=walk[0], calibrate_sizes=False, mirror_hypothesis=False, swap_hypothesis=False)
-    calls = []
+    tr = Tracker(robot, cams, q0=walk[0], calibrate_sizes=False, mirror_hypothesis=False, swap_hypothesis=False,
+                 limb_hypothesis=False, limb_search_drop=-1.0, hypothesis_smoothing=1.0)
+    calls, searches = [], []
     real = tr._exchange_crossed_limbs
     monkeypatch.setattr(tr, "_exchange_crossed_limbs", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(tr, "_swing_limbs", lambda q, fit, *a, **k: searches.append((tr.frame, k)) or (q, fit, ""))
     for f in range(3):
         tr.step(render(robot, walk[f], cams))
     assert tr.limb_search and len(calls) == (2 if n_cams == 1 else 0)
+    assert searches == [(1, {}), (2, {})]  # the full search (not screen_only), with either camera count
 
 
 def test_a_finger_put_back_at_rest_is_flagged_and_carries_no_velocity():
@@ -1149,10 +1154,7 @@ def test_the_one_call_e_step_gives_the_per_body_kernels_views():
     """Tracker.e_step runs a camera in one C call (estep_camera) unless a body needs the
     per-body path; both give the same views to the last bit, and leave the scratch
     image zeroed."""
-    from kms2pin.ecm import mstep
-
-    if mstep._kernels is None:
-        pytest.skip("kms2pin._kernels not built")
+    require_kernels()
     robot = _robot("fullbody")
     cams = _cams(robot)
     rng = np.random.default_rng(5)

@@ -9,6 +9,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from conftest import skip_or_fail_in_ci
 
 from kms2pin.cli import build_parser, main
 from kms2pin.reference import generate_c, generate_python, symbolic_model
@@ -39,7 +40,7 @@ def _load_python(path, name):
 def compiler():
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        pytest.skip("no C compiler")
+        skip_or_fail_in_ci("no C compiler (cc or gcc) on PATH")
     return cc
 
 

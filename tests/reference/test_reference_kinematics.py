@@ -83,7 +83,6 @@ def test_at_angle_zero_the_joint_axes_coincide_in_the_world(system):
 
 def test_reference_kinematics_agree_with_the_pinocchio_robot(spec_name, root):
     """Cross-check of conventions with the URDF/Pinocchio side (not used by the reference)."""
-    pin = pytest.importorskip("pinocchio")
     robot = kms2pin.load(SPECS / f"{spec_name}.kms", root=root)
     rng = np.random.default_rng(SEED + 2)
     for _ in range(3):
@@ -104,7 +103,6 @@ def test_reference_kinematics_agree_with_the_pinocchio_robot(spec_name, root):
         np.testing.assert_allclose(ours[:, :3], theirs[:, :3], atol=1e-12)
         sign = np.where(np.einsum("ij,ij->i", ours[:, 3:], theirs[:, 3:]) < 0, -1.0, 1.0)
         np.testing.assert_allclose(ours[:, 3:], sign[:, None] * theirs[:, 3:], atol=1e-12)
-        assert pin is not None
 
 
 def test_unknown_or_fixed_joint_names_are_refused_with_a_suggestion():

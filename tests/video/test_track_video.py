@@ -133,9 +133,16 @@ def test_size_mismatch_names_video_and_camera(scene, tmp_path, capsys):
 
 def test_pose_json(scene, tmp_path):
     robot = scene["robot"]
-    q = read_pose_json(robot, _pose_json(scene, tmp_path / "p.json"))
-    assert np.allclose(q, scene["truth"][0], atol=1e-9) or np.allclose(q[7:], scene["truth"][0][7:])
-    R = pin.XYZQUATToSE3(scene["truth"][0][:7]).rotation
+    truth0 = scene["truth"][0]
+    turned = truth0.copy()  # the walk's root is not turned: also a turned one, so the rotation counts
+    turned[:7] = pin.SE3ToXYZQUAT(pin.SE3(pin.exp3(np.array([0.3, 2.0, -0.5])), truth0[:3] + [0.2, -0.1, 0.4]))
+    for k, truth in enumerate((truth0, turned)):
+        q = read_pose_json(robot, _pose_json(scene, tmp_path / f"p{k}.json", truth))
+        np.testing.assert_allclose(q[7:], truth[7:], atol=1e-9)
+        # the root pose, not its quaternion: q[3:7] and -q[3:7] are the same rotation
+        np.testing.assert_allclose(pin.XYZQUATToSE3(q[:7]).homogeneous, pin.XYZQUATToSE3(truth[:7]).homogeneous,
+                                   atol=1e-9)
+    R = pin.XYZQUATToSE3(turned[:7]).rotation
     (tmp_path / "r.json").write_text(json.dumps({"root": {"position": [0, 1, 9], "rotation": R.tolist()}}))
     q2 = read_pose_json(robot, tmp_path / "r.json")
     assert np.allclose(q2[:3], [0, 1, 9]) and np.allclose(pin.XYZQUATToSE3(q2[:7]).rotation, R)

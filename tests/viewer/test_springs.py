@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from kms2pin import static_update
 from kms2pin.errors import RobotError, TargetError
 from kms2pin.viewer import draw_static_update, show_static_update, target_poses
 from kms2pin.viewer.scene import ROOT
@@ -80,11 +81,6 @@ def test_dict_targets_as_rows(puma):
 
 
 def test_with_the_real_static_update(puma):
-    import kms2pin
-
-    static_update = getattr(kms2pin, "static_update", None)
-    if static_update is None:
-        pytest.skip("kms2pin.static_update is not available yet")
     q1 = puma.q_rest.copy()
     q1[2] += 0.4
     X = puma.maximal_coordinates(q1)
