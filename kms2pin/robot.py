@@ -32,8 +32,8 @@ _UNIT_TOL = 1e-12
 _ZERO_NORM = 1e-12
 #: Largest |R R^T - I| entry :func:`euler_parameters` accepts as a rotation.
 _ROTATION_TOL = 1e-6
-_EYE3 = np.eye(3)
-_FREE_FLYER_PARTS = ("x", "y", "z", "quaternion x", "quaternion y", "quaternion z", "quaternion w")
+#: Names of a free root's 7 coordinates of q (``root_<part>``, also the trajectory CSV's columns).
+_FREE_FLYER_COORDINATES = tuple(f"root_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))
 
 
 def mesh_package_dir() -> str:
@@ -51,6 +51,9 @@ class Robot:
         urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
+        coordinate_names: one name per entry of ``q``: a free root's
+            ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``, then each
+            revolute joint's name (the columns of a trajectory CSV).
         q_rest: the spec's rest configuration (default joint angles), a Pinocchio ``q``.
         lower_limits, upper_limits: (nq,) bounds of ``q`` from the spec's joint limits
             (radians); -inf / +inf where the spec gives none (the free flyer, and every
@@ -91,6 +94,7 @@ class Robot:
         self.frame_ids = tuple(self._add_centre_frame(b) for b in self.bodies)
         self.data = self.model.createData()
         self.joint_names = tuple(self.model.names[1:])
+        self.coordinate_names = self._coordinate_names()
         pin.loadReferenceConfigurationsFromXML(self.model, self.srdf, False)
         self.q_rest = self._rest_configuration()
         self.lower_limits = np.full(self.model.nq, -np.inf)
@@ -122,6 +126,18 @@ class Robot:
         return self.model.addFrame(
             pin.Frame(f"{body}_centre", frame.parentJoint, link, placement, pin.FrameType.OP_FRAME)
         )
+
+    def _coordinate_names(self) -> tuple[str, ...]:
+        names: list[str] = []
+        for jid in range(1, self.model.njoints):
+            nq, name = self.model.joints[jid].nq, self.model.names[jid]
+            if nq == 7:
+                names += _FREE_FLYER_COORDINATES
+            elif nq == 1:
+                names.append(name)
+            else:  # pragma: no cover - the compiler makes only these joints
+                names += [f"{name}_{k}" for k in range(nq)]
+        return tuple(names)
 
     def _rest_configuration(self) -> np.ndarray:
         q = np.array(self.model.referenceConfigurations["rest"], dtype=float)
@@ -188,14 +204,14 @@ class Robot:
 
     def _non_finite_message(self, q: np.ndarray) -> str:
         k = int(np.flatnonzero(~np.isfinite(q))[0])
-        joint = ""
-        for jid in range(1, self.model.njoints):
-            jm = self.model.joints[jid]
-            if jm.idx_q <= k < jm.idx_q + jm.nq:
-                part = f"{_FREE_FLYER_PARTS[k - jm.idx_q]} of " if jm.nq == 7 else ""
-                joint = f" ({part}joint '{self.model.names[jid]}')"
-                break
-        return f"q[{k}]{joint} of '{self.system.name}' is {q[k]}; every coordinate of q must be finite"
+        name = self.coordinate_names[k]
+        if self.root == "free" and k < 7:  # root_qx -> "quaternion x of joint 'root_joint'"
+            part = name.removeprefix("root_")
+            part = f"quaternion {part[1:]}" if part.startswith("q") else part
+            joint = f"{part} of joint '{self.joint_names[0]}'"
+        else:
+            joint = f"joint '{name}'"
+        return f"q[{k}] ({joint}) of '{self.system.name}' is {q[k]}; every coordinate of q must be finite"
 
     def forward(self, q: np.ndarray) -> None:
         """Forward kinematics of every frame into :attr:`data` (no Jacobians).
@@ -297,17 +313,23 @@ def euler_parameters(R: np.ndarray, convention: str = "positive") -> np.ndarray:
         raise RobotError(f"R must be a 3 x 3 rotation matrix, not shape {R.shape}")
     if not np.isfinite(R).all():
         raise RobotError(f"R must be a rotation matrix, but it is not finite: {R.tolist()}")
-    off = float(np.abs(R @ R.T - _EYE3).max())
+    off, det = rotation_error(R)
     if off > _ROTATION_TOL:
         raise RobotError(
             f"R is not a rotation matrix: R R^T differs from the identity by {off:.3g} "
             f"(tolerance {_ROTATION_TOL:g})"
         )
-    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if det < 0:
         raise RobotError(f"R is not a rotation matrix: det R = {det:.6g} (a reflection; a rotation has det R = +1)")
     return _euler_parameters(R, convention)
+
+
+def rotation_error(R: np.ndarray) -> tuple[float, float]:
+    """How far a finite 3 x 3 matrix ``R`` is from a rotation: (the largest entry of
+    |R R^T - I|, det R).  A rotation gives (0, 1) up to rounding; each caller applies its
+    own tolerance (a reflection is orthogonal with det -1)."""
+    R = np.asarray(R, dtype=float)
+    return float(np.abs(R @ R.T - np.eye(3)).max()), float(np.linalg.det(R))
 
 
 def _euler_parameters(R: np.ndarray, convention: str) -> np.ndarray:

@@ -12,6 +12,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = ROOT / "specs"
 SPEC_NAMES = ("puma600", "lowerbody", "fullbody", "jplhand")
+PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
+
+
+def set_csv_cell(path: Path, line: int, column: str, value: str) -> None:
+    """Set the cell of the CSV file ``path`` on (1-based) ``line`` under the header's ``column`` to ``value``."""
+    rows = [r.split(",") for r in path.read_text().splitlines()]
+    rows[line - 1][rows[0].index(column)] = value
+    path.write_text("".join(",".join(r) + "\n" for r in rows))
 
 
 @pytest.fixture(params=SPEC_NAMES)

@@ -8,10 +8,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import PNG, set_csv_cell
 
 from kms2pin.cli import main
 from kms2pin.ecm.camera import Camera
 from kms2pin.robot import load
+from kms2pin.video.synthetic import walking_video
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 LOWER = str(SPECS / "lowerbody.kms")
@@ -25,9 +27,11 @@ def cams2(tmp_path_factory) -> str:
     return str(path)
 
 
-def _synth(tmp_path, cams, frames=4, noise=0.0, extra=()):
+def _synth(tmp_path, cams=None, frames=4, noise=0.0, extra=()):
+    """Synthetic masks in ``tmp_path/masks``: two cameras from ``cams``, else synth's one."""
     d = tmp_path / "masks"
-    assert main(["synth", LOWER, "--frames", str(frames), "--cameras", cams, "--noise", str(noise),
+    cameras = ["--cameras", cams] if cams else []
+    assert main(["synth", LOWER, "--frames", str(frames), *cameras, "--noise", str(noise),
                  "--seed", "1", "-o", str(d), *extra]) == 0
     return d
 
@@ -195,17 +199,14 @@ def test_evaluate_bad_folder(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "nope"), str(tmp_path / "t.csv")]) == 2
 
 
-PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
-
-
 @pytest.fixture(scope="module")
 def tracked(tmp_path_factory):
     """A 6-frame one-camera synth and its track: (track output folder, truth.csv)."""
     d = tmp_path_factory.mktemp("evaluate")
-    assert main(["synth", LOWER, "--frames", "6", "--seed", "1", "-o", str(d / "masks")]) == 0
+    masks = _synth(d, frames=6)
     out = d / "out"
-    assert main(["track", LOWER, "--masks", str(d / "masks"), "--no-progress", "--no-video", "-o", str(out)]) == 0
-    return out, d / "masks" / "truth.csv"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
+    return out, masks / "truth.csv"
 
 
 def _copy_track(out, dest, rows=None):
@@ -241,10 +242,9 @@ def test_evaluate_warns_of_a_frame_count_mismatch_and_evaluates_the_common_frame
 
 def test_evaluate_rejects_a_truth_with_a_non_finite_cell_naming_its_line_and_column(tracked, tmp_path, capsys):
     out, truth = tracked
-    rows = [r.split(",") for r in truth.read_text().splitlines()]
-    rows[2][rows[0].index("leftShin_knee")] = "nan"
     bad = tmp_path / "t_nan.csv"
-    bad.write_text("".join(",".join(r) + "\n" for r in rows))
+    bad.write_text(truth.read_text())
+    set_csv_cell(bad, 3, "leftShin_knee", "nan")
     capsys.readouterr()
     assert main(["evaluate", str(out), str(bad)]) == 1
     cap = capsys.readouterr()
@@ -339,8 +339,7 @@ def test_a_damaged_mask_stops_the_track_with_its_outputs_complete_up_to_there(tm
     """A mask that is a PNG by its header but cut short (its size is right) stops the run at
     its frame: trajectory.csv and poses.npz hold the frames before it, meta.json says the
     track is not complete, and evaluate warns of both."""
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "6", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=6)
     bad = masks / "cam0" / "frame_00004.png"
     bad.write_bytes(bad.read_bytes()[:40])
     out = tmp_path / "o"
@@ -361,8 +360,7 @@ def test_a_finished_track_is_complete_and_a_rerun_replaces_the_earlier_outputs(t
     """A run that tracks every frame says so in meta.json; a second run into the same
     folder removes the first one's outputs that it does not write itself (here
     overlay.mp4, with --no-video), and says so."""
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=3)
     out = tmp_path / "o"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "-o", str(out)]) == 0
     assert (out / "overlay.mp4").is_file()
@@ -376,8 +374,7 @@ def test_a_finished_track_is_complete_and_a_rerun_replaces_the_earlier_outputs(t
 
 
 def test_every_mask_empty_is_an_error_before_anything_is_written(tmp_path, capsys):
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=3)
     for p in (masks / "cam0").iterdir():
         cv2.imwrite(str(p), np.zeros((240, 320), np.uint8))
     out = tmp_path / "o"
@@ -387,8 +384,7 @@ def test_every_mask_empty_is_an_error_before_anything_is_written(tmp_path, capsy
 
 
 def test_an_empty_first_frame_keeps_the_initial_pose(tmp_path, capsys):
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "3", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=3)
     cv2.imwrite(str(masks / "cam0" / "frame_00000.png"), np.zeros((240, 320), np.uint8))
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 0
     assert "frame 0: empty mask" in (err := capsys.readouterr().err) and "the initial pose kept" in err
@@ -438,17 +434,33 @@ def test_out_of_range_options_are_usage_errors_naming_the_option(tmp_path, capsy
 
 
 def test_options_that_do_nothing_say_so(tmp_path, capsys):
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "2", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=2)
     argv = ["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]
     assert main([*argv, "--shadow-threshold", "0.3", "--no-size-calibration", "--size-every", "3"]) == 0
     err = capsys.readouterr().err
     assert "with --masks they do nothing" in err and "with --no-size-calibration none are measured" in err
 
 
+def test_shadow_threshold_with_no_shadows_says_it_does_nothing_with_video(tmp_path, capsys):
+    """`track --video` shares segment's lighting options and its note: --shadow-threshold
+    with --no-shadows does nothing (a tiny 4-frame video, found by the automatic
+    initialization)."""
+    cam = Camera.default()
+    video = tmp_path / "frames"
+    video.mkdir()
+    for i, f in enumerate(walking_video(load(LOWER, root="free"), cam, frames=4, seed=2).frames):
+        cv2.imwrite(str(video / f"f{i:02d}.png"), f)
+    cam.to_json(tmp_path / "cam.json")
+    argv = ["track", LOWER, "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-shadows",
+            "--shadow-threshold", "0.3", "--no-progress", "--no-video", "-o", str(tmp_path / "o")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert err.count("note: --shadow-threshold sets the shadow test; with --no-shadows it does nothing\n") == 1
+    assert "with --masks they do nothing" not in err
+
+
 def test_a_missing_camera_file_is_a_usage_error_like_a_missing_spec(tmp_path, capsys):
-    masks = tmp_path / "m"
-    assert main(["synth", LOWER, "--frames", "2", "-o", str(masks)]) == 0
+    masks = _synth(tmp_path, frames=2)
     nothere = str(tmp_path / "nothere.json")
     assert main(["track", LOWER, "--masks", str(masks), "--camera", nothere, "-o", str(tmp_path / "o")]) == 2
     assert f"{nothere}: no such file" in capsys.readouterr().err

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..lang import parse_text, read_spec
 from ..model import ModelSpec
+from ..video.segmentation import DEFAULT_METHOD, SegmentParams
 
 
 def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, lo_open: bool = False,
@@ -55,6 +56,31 @@ class Once(argparse.Action):
 
 def add_spec_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("spec", metavar="MODEL.kms", help="model specification file")
+
+
+def existing_file(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a Path; FileNotFoundError (exit 2, "PATH: no such file") if nothing is
+    there: an input file named on the command line that is missing is a usage error."""
+    if not Path(path).exists():
+        raise FileNotFoundError(2, "no such file", os.fspath(path))
+    return Path(path)
+
+
+def lighting_notes(args: argparse.Namespace, *, segmenting: bool = True) -> list[str]:
+    """Notes (without the "note: " prefix) on the options of :func:`add_lighting_arguments`
+    (and ``--method``) that do nothing as given.  ``segmenting``: whether the command
+    segments video (``segment``; ``track --video``) - if not (``track --masks``) they all
+    do nothing."""
+    threshold_set = args.shadow_threshold != SegmentParams.shadow_threshold
+    if not segmenting:
+        if (getattr(args, "method", DEFAULT_METHOD) != DEFAULT_METHOD or args.no_shadows or threshold_set
+                or args.no_gain_compensation):
+            return ["--method, --no-shadows, --shadow-threshold and --no-gain-compensation set the segmentation "
+                    "of --video; with --masks they do nothing"]
+        return []
+    if args.no_shadows and threshold_set:
+        return ["--shadow-threshold sets the shadow test; with --no-shadows it does nothing"]
+    return []
 
 
 def read_model(path: str) -> ModelSpec:

@@ -24,7 +24,7 @@ from pathlib import Path
 from ..errors import CameraError
 from ..video.calibration import DISTORTION_MODELS, calibrate_chessboard, make_camera, with_pose
 from ..video.io import list_images
-from ._common import number, positive, positive_count, write_outputs
+from ._common import existing_file, number, positive, positive_count, write_outputs
 
 NAME = "camera"
 HELP = "make a camera file from a field of view, or calibrate one from chessboard photos"
@@ -86,10 +86,8 @@ def run(args: argparse.Namespace) -> int:
             if not found:
                 raise CameraError(f"{p}: folder holds no images")
             files.extend(str(f) for f in found)
-        elif not p.exists():
-            raise FileNotFoundError(2, "no such file", str(p))
         else:
-            files.append(str(p))
+            files.append(str(existing_file(p)))
     result = calibrate_chessboard(files, _board(args.board), args.square, args.distortion, name=args.name)
     cam = result.camera
     posed = args.position is not None or args.look_at is not None

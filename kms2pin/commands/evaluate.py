@@ -14,8 +14,9 @@ from ..ecm.camera import Camera
 from ..ecm.evaluate import evaluate
 from ..ecm.tracker import Trajectory
 from ..errors import InputDataError
+from ..jsonfile import read_json
 from ..robot import Robot
-from ._common import read_model
+from ._common import existing_file, read_model
 
 NAME = "evaluate"
 HELP = "accuracy of a track output against the true trajectory"
@@ -38,15 +39,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")
-    if not Path(args.truth).is_file():
-        raise FileNotFoundError(2, "no such file", args.truth)
+    existing_file(args.truth)
     meta_path = out / "meta.json"
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise InputDataError(f"{meta_path}: not a text (JSON) file") from None
-    except ValueError as err:
-        raise InputDataError(f"{meta_path}: not valid JSON ({err})") from None
+    meta = read_json(meta_path, InputDataError)
     first = meta.get("first_frame", 0) if isinstance(meta, dict) else None
     if not isinstance(first, int) or isinstance(first, bool) or first < 0:
         raise InputDataError(f"{meta_path}: not the metadata of kms2pin track (expected an object "
@@ -65,13 +60,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputDataError(f"{args.truth}: {len(truth)} frames, but the track starts at frame {first} "
                              f"({meta_path}: first_frame)")
     truth = Trajectory(robot, truth.q[first:])
-    if len(tracked) != len(truth):
-        since = f" from frame {first}" if first else ""
-        print(f"kms2pin evaluate: warning: {out} has {len(tracked)} frames, {args.truth} {len(truth)}{since}: "
-              f"evaluating the first {min(len(tracked), len(truth))}", file=sys.stderr)
     # one camera: the error split along and across its viewing rays (depth, and what it sees)
     cameras = Camera.list_from_json(out / "cameras.json") if (out / "cameras.json").is_file() else []
     rep = evaluate(robot, tracked, truth, cameras[0].centre if len(cameras) == 1 else None)
+    if rep["tracked_frames"] != rep["truth_frames"]:
+        since = f" from frame {first}" if first else ""
+        print(f"kms2pin evaluate: warning: {out} has {rep['tracked_frames']} frames, {args.truth} "
+              f"{rep['truth_frames']}{since}: evaluating the first {rep['frames']}", file=sys.stderr)
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0

@@ -38,11 +38,10 @@ from ..video.segmentation import (
     DEFAULT_THRESHOLD,
     LEARN_FROM,
     METHODS,
+    Segmenter,
     SegmentParams,
-    _segment_u8,
-    static_foreground_messages,
 )
-from ._common import count, number, positive, positive_count
+from ._common import count, lighting_notes, number, positive, positive_count
 
 NAME = "segment"
 HELP = "video (or image folder) -> figure-ground masks by adaptive background subtraction"
@@ -100,9 +99,9 @@ def run(args: argparse.Namespace) -> int:
         detect_shadows=not args.no_shadows, shadow_threshold=args.shadow_threshold,
         refine_edges=not args.no_edge_refinement, compensate_gain=not args.no_gain_compensation,
     )
-    params.check()
-    if args.no_shadows and args.shadow_threshold != SegmentParams.shadow_threshold:
-        print("note: --shadow-threshold sets the shadow test; with --no-shadows it does nothing", file=sys.stderr)
+    seg = Segmenter(params)  # checks the parameters
+    for note in lighting_notes(args):
+        print(f"note: {note}", file=sys.stderr)
     source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
     out = Path(args.output)
     try:
@@ -113,8 +112,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.video}: learning the background from {params.learn_frames} frames ...", file=sys.stderr)
     n = 0
     bar = tqdm(total=source.len_hint, unit="frame", desc="segment", disable=args.no_progress, file=sys.stderr)
-    with static_foreground_messages() as found, bar:
-        for n, mask in enumerate(_segment_u8(source, params), start=1):
+    with bar:
+        for n, mask in enumerate(seg.masks(source), start=1):
             try:
                 write_mask(out, n - 1, mask)
             except OSError as e:
@@ -123,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     stale = remove_masks_from(out, n)
     if source.stopped_early:
         print(f"kms2pin segment: warning: {source.stopped_early}; masks written for those frames", file=sys.stderr)
-    for message in found:
+    message = seg.static_foreground()
+    if message:
         print(f"kms2pin segment: warning: {message}", file=sys.stderr)
     extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
     print(f"{out}: {n} masks {MASK_NAME.format(0)}..{MASK_NAME.format(n - 1)}{extra}")

@@ -23,7 +23,7 @@ from ..ecm.tracker import Trajectory
 from ..errors import Kms2pinError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
-from ._common import add_spec_argument, count, number, positive_count, read_model
+from ._common import add_spec_argument, count, existing_file, number, positive_count, read_model
 
 NAME = "synth"
 HELP = "render synthetic silhouette masks of a moving model (for track / evaluate)"
@@ -46,8 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
-    if args.cameras and not Path(args.cameras).exists():  # a usage error, as for the spec
-        raise FileNotFoundError(2, "no such file", args.cameras)
+    if args.cameras:
+        existing_file(args.cameras)  # a usage error, as for the spec
     cameras = Camera.list_from_json(args.cameras) if args.cameras else [Camera.default()]
     rng = np.random.default_rng(args.seed)
     motion = make_motion(robot, args.motion, args.frames, rng)

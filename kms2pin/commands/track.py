@@ -35,9 +35,9 @@ from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_coni
 from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
-from ..video.io import remove_masks_from
-from ..video.segmentation import DEFAULT_METHOD, METHODS, SegmentParams
-from ._common import Once, add_spec_argument, count, non_negative, positive, read_model
+from ..video.io import remove_masks_from, write_mask
+from ..video.segmentation import DEFAULT_METHOD, METHODS
+from ._common import Once, add_spec_argument, count, existing_file, lighting_notes, non_negative, positive, read_model
 from .segment import add_lighting_arguments
 
 NAME = "track"
@@ -134,8 +134,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
     cameras: list[Camera] = []
     names: list[str] = []
     for path in paths:
-        if not Path(path).exists():  # a usage error, as for the spec and the videos
-            raise FileNotFoundError(2, "no such file", path)
+        existing_file(path)  # a usage error, as for the spec and the videos
         cams = Camera.list_from_json(path)
         cameras += cams
         names += [path] if len(cams) == 1 else [f"{path}[{i}]" for i in range(len(cams))]
@@ -277,8 +276,7 @@ def _initial_q(args, robot: Robot):
     """q0 from --init POSE.csv / POSE.json, or None (rest pose or "auto")."""
     if not args.init or args.init == "auto":
         return None
-    if not Path(args.init).exists():
-        raise FileNotFoundError(2, "no such file", args.init)
+    existing_file(args.init)
     if args.init.lower().endswith(".json"):
         from ..video.init import read_pose_json
 
@@ -289,11 +287,12 @@ def _initial_q(args, robot: Robot):
     return init.q[0]
 
 
-def _first_non_empty(load, frames: int, masks_dir: Path) -> int:
-    """The first frame with a non-empty mask; InputDataError if there is none."""
+def _first_non_empty(load, frames: int, masks_dir: Path) -> tuple[int, list[np.ndarray]]:
+    """The first frame with a non-empty mask and its masks; InputDataError if there is none."""
     for k in range(frames):
-        if any(m.any() for m in load(k)):
-            return k
+        masks = load(k)
+        if any(m.any() for m in masks):
+            return k, masks
     raise InputDataError(f"{masks_dir}: every mask is empty: nothing to track")
 
 
@@ -319,19 +318,14 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     out = Path(args.output)
     video_mode = bool(args.video)
-    if not video_mode and (args.method != DEFAULT_METHOD or args.no_shadows
-                           or args.shadow_threshold != SegmentParams.shadow_threshold
-                           or args.no_gain_compensation):
-        print("note: --method, --no-shadows, --shadow-threshold and --no-gain-compensation set the segmentation "
-              "of --video; with --masks they do nothing", file=sys.stderr)
+    for note in lighting_notes(args, segmenting=video_mode):
+        print(f"note: {note}", file=sys.stderr)
     if video_mode:
         if not args.camera:
             raise InputDataError("--video needs the cameras: give one --camera CAM.json per --video, in order")
         cameras, camera_names = _load_cameras(args.camera)
         for v in args.video:
-            if not Path(v).exists():
-                raise FileNotFoundError(2, "no such file", v)
-        from ..video.io import write_mask
+            existing_file(v)
         from ..video.track_video import segment_videos
 
         per_cam_masks, notes = segment_videos(args.video, cameras, camera_names, method=args.method,
@@ -382,9 +376,9 @@ def run(args: argparse.Namespace) -> int:
     q0 = _initial_q(args, robot)
     auto = args.init == "auto" or (video_mode and not args.init)
     init_fit = None
-    first = _first_non_empty(load, len(numbers), masks_dir)
+    first, first_masks = _first_non_empty(load, len(numbers), masks_dir)
     if auto:
-        q0, init_fit = _auto_init(robot, cameras, load(first), first)
+        q0, init_fit = _auto_init(robot, cameras, first_masks, first)
     if not video_mode:
         removed = _remove_earlier_outputs(out, len(cameras))
     if removed:

@@ -31,6 +31,8 @@ import numpy as np
 import pinocchio as pin
 
 from kms2pin.errors import CameraError, did_you_mean
+from kms2pin.jsonfile import read_json
+from kms2pin.robot import rotation_error
 
 ROTATION_TOL = 1e-6
 DIST_LENGTHS = (4, 5, 8, 12, 14)
@@ -311,7 +313,7 @@ class Camera:
     @classmethod
     def from_json(cls, path: str | Path) -> Camera:
         """Read one camera (a JSON object) from ``path``."""
-        data = _load_json(path)
+        data = read_json(path, CameraError, cannot_read="cannot read camera file")
         if isinstance(data, list):
             n = len(data)
             raise CameraError(f"{path}: holds a list of {n} camera{'' if n == 1 else 's'}, not a single camera")
@@ -320,7 +322,7 @@ class Camera:
     @classmethod
     def list_from_json(cls, path: str | Path) -> list[Camera]:
         """Read a JSON list of cameras (or a single camera object) from ``path``."""
-        data = _load_json(path)
+        data = read_json(path, CameraError, cannot_read="cannot read camera file")
         if not isinstance(data, list):
             return [_parse_camera(data, str(path))]
         if not data:
@@ -334,19 +336,6 @@ def _intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
         raise CameraError(f"camera: field of view must be in (0, 180) degrees, got {fov_deg}")
     f = (height / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def _load_json(path: str | Path) -> Any:
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as e:
-        raise CameraError(f"{path}: cannot read camera file: {e.strerror or e}") from e
-    except UnicodeDecodeError:
-        raise CameraError(f"{path}: not a text (JSON) file") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise CameraError(f"{path}:{e.lineno}:{e.colno}: not valid JSON: {e.msg}") from e
 
 
 def _is_number(x: Any) -> bool:
@@ -400,8 +389,7 @@ def _check_K(K: np.ndarray, where: str) -> np.ndarray:
 
 def _check_rotation(R: np.ndarray, where: str, field: str) -> np.ndarray:
     R = _matrix(R, (3, 3), where, field, "a 3x3 matrix of numbers")
-    err = float(np.max(np.abs(R @ R.T - np.eye(3))))
-    det = float(np.linalg.det(R))
+    err, det = rotation_error(R)
     if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
         raise CameraError(
             f"{where}: field '{field}' is not a rotation matrix "

@@ -19,7 +19,8 @@ def evaluate(
 
     Frames are compared in order; when the counts differ, the first ``frames`` (the
     shorter trajectory's count) are compared, silently: ``tracked_frames`` and
-    ``truth_frames`` in the result give both counts for a caller to warn about.
+    ``truth_frames`` in the result give both counts for a caller to warn about (as
+    ``kms2pin evaluate`` does).
     Raises :class:`InputDataError` when either trajectory is empty.
 
     ``camera_centre`` (one camera's centre, world frame): also split each body's centre

@@ -91,17 +91,8 @@ class Trajectory:
 
     @staticmethod
     def columns(robot: Robot) -> list[str]:
-        cols = []
-        for jid in range(1, robot.model.njoints):
-            j = robot.model.joints[jid]
-            name = robot.model.names[jid]
-            if j.nq == 7:
-                cols += ["root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw"]
-            elif j.nq == 1:
-                cols.append(name)
-            else:  # pragma: no cover - the compiler makes only these joints
-                cols += [f"{name}_{k}" for k in range(j.nq)]
-        return cols
+        """The CSV's joint-coordinate columns: :attr:`Robot.coordinate_names`."""
+        return list(robot.coordinate_names)
 
     def table(self) -> np.ndarray:
         """(T, nq) with revolute angles in degrees (CSV units)."""
@@ -136,8 +127,11 @@ class Trajectory:
         - ``body_scales`` (n_bodies, 3): the body-size factors the tracker used (ones
           if none).
         """
-        poses = np.array([self.robot.maximal_coordinates(q) for q in self.q]).reshape(
-            len(self.q), len(self.robot.bodies), 7)
+        if self.results:  # the tracker's own, at each frame's q
+            poses = np.array([r.body_poses for r in self.results], dtype=float)
+        else:
+            poses = np.array([self.robot.maximal_coordinates(q) for q in self.q])
+        poses = poses.reshape(len(self.q), len(self.robot.bodies), 7)
         res = self.results
         np.savez_compressed(
             path,
@@ -226,17 +220,26 @@ class Trajectory:
                 f"(root={robot.root!r}); the file has {', '.join(header)}"
             )
         idx = [header.index(c) for c in cols]
-        q = np.empty((len(rows) - 1, robot.nq))
-        for k, (line, row) in enumerate(rows[1:]):
+        body = rows[1:]
+        q = np.empty((len(body), robot.nq))
+        short = len(body)  # the first malformed row, reported after any bad cell above it
+        for k, (_, row) in enumerate(body):
             if len(row) <= max(idx):
-                raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
-            for c, (name, i) in enumerate(zip(cols, idx)):
+                short = k
+                break
+            for c, i in enumerate(idx):
                 try:
                     q[k, c] = float(row[i])
-                except ValueError:
+                except ValueError:  # not a number: reported below as a non-finite one, with its text
                     q[k, c] = np.nan
-                if not np.isfinite(q[k, c]):
-                    raise InputDataError(f"{path}:{line}: column '{name}': {row[i]!r} is not a finite number")
+        bad = np.argwhere(~np.isfinite(q[:short]))
+        if len(bad):
+            k, c = bad[0]
+            line, row = body[k]
+            raise InputDataError(f"{path}:{line}: column '{cols[c]}': {row[idx[c]]!r} is not a finite number")
+        if short < len(body):
+            line, row = body[short]
+            raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
         for jid in range(1, robot.model.njoints):
             j = robot.model.joints[jid]
             if j.nq == 1:

@@ -25,7 +25,6 @@ their rest angle, the root left out keeps its rest pose.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,7 +37,8 @@ import pinocchio as pin
 from ..ecm.camera import Camera
 from ..ecm.raycast import render_mask
 from ..errors import InputDataError, did_you_mean
-from ..robot import Robot
+from ..jsonfile import read_json
+from ..robot import Robot, rotation_error
 
 
 @dataclass(frozen=True)
@@ -257,7 +257,8 @@ def _rotation(value, where: str) -> np.ndarray:
     R = np.asarray(value, dtype=float)
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
         raise InputDataError(f"{where}: root rotation must be a 3x3 matrix")
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+    off, det = rotation_error(R)
+    if off > 1e-3 or det < 0:
         raise InputDataError(f"{where}: root rotation is not a rotation matrix (RᵀR ≠ I or det < 0)")
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
@@ -266,13 +267,7 @@ def _rotation(value, where: str) -> np.ndarray:
 def read_pose_json(robot: Robot, path: str | os.PathLike) -> np.ndarray:
     """Configuration from a pose file (module docstring); angles in degrees."""
     where = str(path)
-    try:
-        with open(path) as f:
-            data = json.load(f)
-    except json.JSONDecodeError as err:
-        raise InputDataError(f"{where}:{err.lineno}: not valid JSON: {err.msg}") from None
-    except UnicodeDecodeError:
-        raise InputDataError(f"{where}: not a text (JSON) file") from None
+    data = read_json(path, InputDataError)
     if not isinstance(data, dict):
         raise InputDataError(f"{where}: expected an object with 'joints' and/or 'root'")
     unknown = sorted(set(data) - {"joints", "root"})

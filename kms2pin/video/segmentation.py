@@ -48,7 +48,8 @@ Pipeline, per frame:
    nothing is flagged.
    **Gain**: with ``compensate_gain`` each frame's per-channel gain against
    the learnt background is measured: the median ratio over every fourth pixel
-   of every fourth row, leaving out the last frame's foreground
+   of every fourth row (every s-th of every s-th above 640x480, about 20000
+   pixels: s = 10 at 1920x1080), leaving out the last frame's foreground
    (:func:`channel_gains`).  When a gain is more than ``GAIN_DEADBAND`` (10 %)
    from 1, the frame is divided by its gains first.  A camera's automatic
    exposure or white balance, or a dimmer light, scales the whole image; the
@@ -112,9 +113,9 @@ measured against the learnt background).
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -127,22 +128,6 @@ from ..errors import InputDataError
 class StaticForegroundWarning(UserWarning):
     """Part of the image is foreground in nearly every frame: the background model did
     not learn it (module docstring, step 6)."""
-
-
-@contextmanager
-def static_foreground_messages() -> Iterator[list[str]]:
-    """Collect the :class:`StaticForegroundWarning` messages of the segmentation run in
-    the ``with`` block into the list it yields (filled when the block ends), for a caller
-    that prints them its own way; other warnings are shown as usual."""
-    messages: list[str] = []
-    with warnings.catch_warnings(record=True) as found:
-        warnings.simplefilter("always", StaticForegroundWarning)
-        yield messages
-    for w in found:
-        if issubclass(w.category, StaticForegroundWarning):
-            messages.append(str(w.message))
-        else:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
 #: share of the frames in which a pixel must be foreground to count as static foreground
@@ -318,20 +303,31 @@ def refine_edges(raw: np.ndarray, luma: np.ndarray, bg_luma: np.ndarray, gain: f
     return out
 
 
-#: the gain is measured on every _GAIN_STEP-th pixel of every _GAIN_STEP-th row
+#: the gain is measured on every s-th pixel of every s-th row (:func:`gain_step`): s is
+#: _GAIN_STEP up to 640x480, and larger above so that about _GAIN_PIXELS pixels count
 _GAIN_STEP = 4
+_GAIN_PIXELS = 20000
 #: a frame is divided by its gains only when one is further than this from 1: the
 #: background models learn smaller changes (flicker) as part of each pixel's variance
 GAIN_DEADBAND = 0.1
 
 
-def channel_gains(frame: np.ndarray, reference: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
+def gain_step(shape: tuple[int, ...]) -> int:
+    """The stride of the pixels the gain is measured on, for an image of ``shape``: 4 up to
+    640x480 (and a little above), then growing so that about 20000 pixels count (10 at
+    1920x1080): the median's cost grows with the pixels, its precision hardly."""
+    return max(_GAIN_STEP, round(math.sqrt(shape[0] * shape[1] / _GAIN_PIXELS)))
+
+
+def channel_gains(frame: np.ndarray, reference: np.ndarray, exclude: np.ndarray | None = None,
+                  lit: np.ndarray | None = None) -> np.ndarray:
     """Per-channel gain of ``frame`` against ``reference`` (both ``(h, w, 3)``): the median
     over pixels of their ratio, left out where the reference is dark (< 16), the frame
     saturated (> 250) or ``exclude`` (the subject) is set.  The median ignores the subject
-    as long as it covers less than half of the pixels.  Ones when fewer than 64 pixels count."""
+    as long as it covers less than half of the pixels.  Ones when fewer than 64 pixels count.
+    ``lit``: ``reference >= 16``, from a caller that measures many frames against one reference."""
     f = frame.astype(np.float32)
-    ok = (reference >= 16.0) & (f <= 250.0)
+    ok = (reference >= 16.0 if lit is None else lit) & (f <= 250.0)
     if exclude is not None:
         ok &= ~exclude[:, :, None]
     gains = np.ones(3)
@@ -428,9 +424,11 @@ def bootstrap_frames(frames: list[np.ndarray], diff: float, tolerance: float = 2
 class Segmenter:
     """Stateful frame-by-frame segmentation (used by :func:`segment_frames`).
 
-    ``learn(frames)`` trains on the learning frames; ``segment(frame, rate)``
-    returns one 0/255 mask.  ``bg_luma`` is the (H, W) float32 luminance
-    background of the edge refinement.
+    ``masks(frames)`` gives the 0/255 mask of every frame in order, learning first
+    (module docstring); after it ``static_foreground()`` checks them (step 6).  Frame
+    by frame: ``learn(frames)`` trains on the learning frames; ``segment(frame, rate)``
+    returns one 0/255 mask.  ``bg_luma`` is the (H, W) float32 luminance background of
+    the edge refinement.
     """
 
     def __init__(self, params: SegmentParams):
@@ -443,8 +441,9 @@ class Segmenter:
         self.bg_luma: np.ndarray | None = None
         self.frames_seen = 0
         self.reference: np.ndarray | None = None  # subsampled background, for the gain
+        self.lit: np.ndarray | None = None  # reference >= 16 (channel_gains)
         self.subject: np.ndarray | None = None  # subsampled last raw mask's foreground
-        self.foreground_count: np.ndarray | None = None  # per pixel, frames segmented as foreground
+        self.foreground_sum: np.ndarray | None = None  # per pixel, the sum of the masks: 255 per foreground frame
 
     def _check_shape(self, frame: np.ndarray, index: int) -> None:
         if self.shape is None:
@@ -459,22 +458,29 @@ class Segmenter:
 
     @staticmethod
     def _sub(a: np.ndarray) -> np.ndarray:
-        return a[::_GAIN_STEP, ::_GAIN_STEP]
+        step = gain_step(a.shape)
+        return a[::step, ::step]
 
     @staticmethod
     def _compensated(frame: np.ndarray, gains: np.ndarray) -> np.ndarray:
         return apply_gains(frame, gains) if np.abs(gains - 1.0).max() > GAIN_DEADBAND else frame
+
+    def _gains(self, frame: np.ndarray) -> np.ndarray:
+        """``frame``'s per-channel gains against the learnt background (``reference`` set)."""
+        assert self.reference is not None
+        return channel_gains(self._sub(frame), self.reference, self.subject, self.lit)
 
     def learn(self, frames: list[np.ndarray], epochs: int = 2) -> None:
         if self.params.compensate_gain and frames:
             ref = self._sub(frames[len(frames) // 2]).astype(np.float32)
             frames = [self._compensated(f, channel_gains(self._sub(f), ref)) for f in frames]
         clean = bootstrap_frames(frames, self.params.bootstrap_diff, self.params.mode_tolerance)
-        if self.params.compensate_gain and clean:
-            self.reference = np.mean([self._sub(f) for f in clean], axis=0, dtype=np.float32)
         for _ in range(epochs):
             for k, f in enumerate(clean):
                 self.model.apply(f, learningRate=1.0 / (k + 1))
+        if self.params.compensate_gain and clean:
+            self.reference = np.mean([self._sub(f) for f in clean], axis=0, dtype=np.float32)
+            self.lit = self.reference >= 16.0
         if self.params.refine_edges and clean:
             acc = np.zeros(clean[0].shape[:2], np.float32)
             for f in clean:
@@ -484,7 +490,7 @@ class Segmenter:
     def segment(self, frame: np.ndarray, rate: float | None = None) -> np.ndarray:
         rate = self.rate if rate is None else rate
         if self.reference is not None:
-            frame = self._compensated(frame, channel_gains(self._sub(frame), self.reference, self.subject))
+            frame = self._compensated(frame, self._gains(frame))
         raw = self.model.apply(frame, learningRate=rate)
         if self.reference is not None:
             self.subject = self._sub(raw) > 0
@@ -502,16 +508,59 @@ class Segmenter:
                 cv2.accumulateWeighted(luma, self.bg_luma, luma_rate, mask=cv2.compare(raw, 0, cv2.CMP_EQ))
         assert self.min_area is not None
         mask = clean_mask(raw, self.params, self.min_area)
-        if self.foreground_count is None:
-            self.foreground_count = np.zeros(mask.shape, np.uint32)
-        self.foreground_count += mask > 0
+        if self.foreground_sum is None:
+            self.foreground_sum = np.zeros(mask.shape, np.uint32)
+        self.foreground_sum += mask  # 0/255: no boolean mask per frame (uint32: 16 million frames)
         return mask
+
+    def masks(self, frames: Iterable) -> Iterator[np.ndarray]:
+        """The 0/255 mask of every frame of ``frames`` (images or ``(index, image)`` pairs),
+        in order, learning as ``params.learn_from`` says (:func:`segment_frames`)."""
+        params = self.params
+        if params.learn_from == "spread" and params.learn_frames > 0:
+            if iter(frames) is frames:
+                raise InputDataError(
+                    "learn_from='spread' reads the frames twice: pass a list or open_frames(path), "
+                    "not a one-shot iterator (or use learn_from='start')"
+                )
+            sample = sample_evenly(frames, params.learn_frames)
+            if sample:
+                self._check_shape(sample[0], 0)
+                self.learn(sample)
+            for k, item in enumerate(frames):
+                index, frame = item if isinstance(item, tuple) else (k, item)
+                frame = _as_bgr(frame, index)
+                self._check_shape(frame, index)
+                yield self.segment(frame)
+            return
+        buffer: list[np.ndarray] = []
+        learning = params.learn_frames > 0
+        for k, item in enumerate(frames):
+            index, frame = item if isinstance(item, tuple) else (k, item)
+            frame = _as_bgr(frame, index)
+            self._check_shape(frame, index)
+            if learning:
+                buffer.append(frame)
+                if len(buffer) < params.learn_frames:
+                    continue
+                self.learn(buffer)
+                for f in buffer:
+                    yield self.segment(f, rate=0.0)
+                buffer = []
+                learning = False
+                continue
+            yield self.segment(frame, rate=None if params.learn_frames > 0 else -1.0)
+        if learning and buffer:  # fewer frames than learn_frames: learn from them all
+            self.learn(buffer)
+            for f in buffer:
+                yield self.segment(f, rate=0.0)
 
     def static_foreground(self) -> str | None:
         """The message of a :class:`StaticForegroundWarning`, or None (module docstring, step 6)."""
-        count, n = self.foreground_count, self.frames_seen
-        if count is None or n < STATIC_MIN_FRAMES:
+        total, n = self.foreground_sum, self.frames_seen
+        if total is None or n < STATIC_MIN_FRAMES:
             return None
+        count = total // 255
         static = (count >= STATIC_SHARE * n).astype(np.uint8)
         stats = cv2.connectedComponentsWithStats(static, 8, cv2.CV_32S)[2]
         big = [i for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
@@ -564,53 +613,8 @@ def segment_frames(
     ``refine_edges``, ``edge_contrast``, ``compensate_gain``).  Warns
     (:class:`StaticForegroundWarning`) of a part of the scene the model never learnt.
     """
-    params = SegmentParams(method=method, learn_frames=learn_frames, learn_from=learn_from, **kwargs)
-    yield from (m > 0 for m in _segment_u8(frames, params))
-
-
-def _segment_u8(frames: Iterable, params: SegmentParams) -> Iterator[np.ndarray]:
-    seg = Segmenter(params)
-    yield from _segment_with(seg, frames, params)
+    seg = Segmenter(SegmentParams(method=method, learn_frames=learn_frames, learn_from=learn_from, **kwargs))
+    yield from (m > 0 for m in seg.masks(frames))
     message = seg.static_foreground()
     if message:
         warnings.warn(StaticForegroundWarning(message), stacklevel=2)
-
-
-def _segment_with(seg: Segmenter, frames: Iterable, params: SegmentParams) -> Iterator[np.ndarray]:
-    if params.learn_from == "spread" and params.learn_frames > 0:
-        if iter(frames) is frames:
-            raise InputDataError(
-                "learn_from='spread' reads the frames twice: pass a list or open_frames(path), "
-                "not a one-shot iterator (or use learn_from='start')"
-            )
-        sample = sample_evenly(frames, params.learn_frames)
-        if sample:
-            seg._check_shape(sample[0], 0)
-            seg.learn(sample)
-        for k, item in enumerate(frames):
-            index, frame = item if isinstance(item, tuple) else (k, item)
-            frame = _as_bgr(frame, index)
-            seg._check_shape(frame, index)
-            yield seg.segment(frame)
-        return
-    buffer: list[np.ndarray] = []
-    learning = params.learn_frames > 0
-    for k, item in enumerate(frames):
-        index, frame = item if isinstance(item, tuple) else (k, item)
-        frame = _as_bgr(frame, index)
-        seg._check_shape(frame, index)
-        if learning:
-            buffer.append(frame)
-            if len(buffer) < params.learn_frames:
-                continue
-            seg.learn(buffer)
-            for f in buffer:
-                yield seg.segment(f, rate=0.0)
-            buffer = []
-            learning = False
-            continue
-        yield seg.segment(frame, rate=None if params.learn_frames > 0 else -1.0)
-    if learning and buffer:  # fewer frames than learn_frames: learn from them all
-        seg.learn(buffer)
-        for f in buffer:
-            yield seg.segment(f, rate=0.0)

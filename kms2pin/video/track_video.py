@@ -2,7 +2,7 @@
 (one per camera) into masks, and the joint-angle plot.
 
 :func:`segment_videos` checks every video's frame size against its camera,
-segments it (:func:`kms2pin.video.segment_frames`) and returns the masks; the
+segments it (as :func:`kms2pin.video.segment_frames` does) and returns the masks; the
 videos are cut to the shortest, and a truncated or partly unreadable video
 is used up to its last good frame - both with a note saying so.
 """
@@ -20,7 +20,7 @@ from ..ecm.camera import Camera
 from ..errors import InputDataError
 from ..robot import Robot
 from .io import open_frames
-from .segmentation import segment_frames, static_foreground_messages
+from .segmentation import Segmenter, SegmentParams
 
 
 def frame_size(path: str | os.PathLike) -> tuple[int, int]:
@@ -64,9 +64,11 @@ def segment_videos(
     notes: list[str] = []
     for v in videos:
         src = open_frames(v)
-        with static_foreground_messages() as found:
-            masks = list(segment_frames(src, method=method, **segment_kw))
-        notes += [f"{v}: {m}" for m in found]
+        seg = Segmenter(SegmentParams(method=method, **segment_kw))
+        masks = [m > 0 for m in seg.masks(src)]
+        message = seg.static_foreground()
+        if message:
+            notes.append(f"{v}: {message}")
         if src.stopped_early:
             notes.append(f"{src.stopped_early}; tracking the {len(masks)} frame(s) read")
         per_cam.append(masks)

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import PNG
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.errors import CameraError
@@ -282,7 +283,7 @@ def test_reading_one_camera_from_a_list_file_says_the_file_holds_a_list(tmp_path
 @pytest.mark.parametrize("read", [Camera.from_json, Camera.list_from_json])
 def test_a_binary_file_is_a_camera_error_saying_it_is_not_text(tmp_path, read):
     path = tmp_path / "frame.png"
-    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
+    path.write_bytes(PNG)
     with pytest.raises(CameraError) as err:
         read(path)
     assert str(err.value) == f"{path}: not a text (JSON) file"

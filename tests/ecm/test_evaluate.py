@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import PNG, set_csv_cell
 
 from kms2pin.ecm.evaluate import evaluate
 from kms2pin.ecm.motions import make_motion
@@ -114,9 +115,7 @@ def test_an_empty_trajectory_is_an_error_saying_which(hand):
 def _csv_with_cell(robot, truth, path, line, column, value):
     """``truth`` as a trajectory CSV with the cell on (1-based) ``line`` under ``column`` set to ``value``."""
     Trajectory(robot, truth[:3]).to_csv(path)
-    rows = [r.split(",") for r in path.read_text().splitlines()]
-    rows[line - 1][rows[0].index(column)] = value
-    path.write_text("".join(",".join(r) + "\n" for r in rows))
+    set_csv_cell(path, line, column, value)
 
 
 @pytest.mark.parametrize("value", ["nan", "NaN", "inf", "-inf", "1e999", "", "ten"])
@@ -144,7 +143,7 @@ def test_a_short_csv_row_is_reported_with_its_line(hand, tmp_path):
 def test_a_binary_csv_is_an_input_data_error_saying_it_is_not_text(hand, tmp_path):
     robot, _ = hand
     path = tmp_path / "trajectory.csv"
-    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
+    path.write_bytes(PNG)
     with pytest.raises(InputDataError) as err:
         Trajectory.from_csv(robot, path)
     assert str(err.value) == f"{path}: not a text (CSV) file"

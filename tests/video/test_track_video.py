@@ -46,6 +46,25 @@ def scene(tmp_path_factory):
             "cam_files": [str(c) for c in cam_files], "masks": true_masks, "frames": all_frames, "dir": d}
 
 
+@pytest.fixture(scope="module")
+def clip16():
+    """A 16-frame clip of the lower body walking, seen by the default camera: (camera, video)."""
+    robot = load(str(LOWER), root="free")
+    cam = Camera.default()
+    return cam, walking_video(robot, cam, frames=16, seed=2)
+
+
+def _write_clip(folder, frames, cam) -> list[str]:
+    """``frames`` as ``folder``/fNN.png and ``cam`` as cam.json beside it; the `track`
+    arguments that read them (without ``-o``)."""
+    folder.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i:02d}.png"), f)
+    cam_file = folder.parent / "cam.json"
+    cam.to_json(cam_file)
+    return ["track", str(LOWER), "--video", str(folder), "--camera", str(cam_file), "--no-progress", "--no-video"]
+
+
 def _args(scene, videos=None, cams=None):
     out = []
     for v in videos or scene["videos"]:
@@ -215,21 +234,13 @@ def test_no_shadows_reaches_the_segmentation(tmp_path, capsys):
     assert min((m & t).sum() / t.sum() for m, t in zip(masks, light)) >= 0.98
 
 
-def test_shadow_threshold_reaches_the_segmentation(tmp_path, capsys):
+def test_shadow_threshold_reaches_the_segmentation(clip16, tmp_path, capsys):
     """`track --video --shadow-threshold 0.3`: a cast shadow at 0.4 of the floor's
     brightness is not in the masks it saves; a threshold outside (0, 1) is refused
     before anything is written."""
-    robot = load(str(LOWER), root="free")
-    cam = Camera.default()
-    v = walking_video(robot, cam, frames=16, seed=2)
-    video = tmp_path / "frames"
-    video.mkdir()
+    cam, v = clip16
     frames, shadows = cast_shadow(v.frames, v.masks, 0.4)
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(video / f"f{i:02d}.png"), f)
-    cam.to_json(tmp_path / "cam.json")
-    args = ["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-progress",
-            "--no-video"]
+    args = _write_clip(tmp_path / "frames", frames, cam)
     bad = tmp_path / "bad"
     with pytest.raises(SystemExit) as exc:
         main([*args, "--shadow-threshold", "1", "-o", str(bad)])
@@ -245,25 +256,18 @@ def test_shadow_threshold_reaches_the_segmentation(tmp_path, capsys):
     assert sum(int((m & s).sum()) for m, s in zip(masks, shadows)) < 0.02 * sum(int(s.sum()) for s in shadows)
 
 
-def test_gain_compensation_reaches_the_segmentation(tmp_path, capsys):
+def test_gain_compensation_reaches_the_segmentation(clip16, tmp_path, capsys):
     """`track --video` divides out an exposure step (the whole image 25 % brighter from
     frame 8 on, as a camera's automatic exposure does) and `--no-gain-compensation`
     does not: the masks it saves then hold most of the background."""
-    robot = load(str(LOWER), root="free")
-    cam = Camera.default()
-    v = walking_video(robot, cam, frames=16, seed=2)
-    video = tmp_path / "frames"
-    video.mkdir()
-    for i, f in enumerate(v.frames):
-        cv2.imwrite(str(video / f"f{i:02d}.png"), np.clip(f * (1.25 if i >= 8 else 1.0), 0, 255).astype(np.uint8))
-    cam.to_json(tmp_path / "cam.json")
-    args = ["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"), "--no-progress",
-            "--no-video"]
+    cam, v = clip16
+    stepped = [np.clip(f * (1.25 if i >= 8 else 1.0), 0, 255).astype(np.uint8) for i, f in enumerate(v.frames)]
+    args = _write_clip(tmp_path / "frames", stepped, cam)
     false = {}
     for extra in ([], ["--no-gain-compensation"]):
         out = tmp_path / f"o{len(extra)}"
         assert main([*args, *extra, "-o", str(out)]) == 0, capsys.readouterr().err
-        assert json.loads((out / "meta.json").read_text())["gain_compensation"] is not extra
+        assert json.loads((out / "meta.json").read_text())["gain_compensation"] == (not extra)
         masks = read_masks(out / "masks" / "cam0", len(v.frames))
         false[bool(extra)] = max((m & ~t).sum() / t.sum() for m, t in zip(masks[8:], v.masks[8:]))
     assert false[False] < 0.25 < 5.0 < false[True], false  # false pixels in units of the true area
@@ -305,22 +309,11 @@ def test_one_camera_video_waits_for_the_running_fit_before_searching_or_switchin
     assert rep["mean_centre_error_pct"] < 3.0 and rep["worst_frame_error_pct"] < 10.0
 
 
-def test_a_shorter_video_into_the_same_folder_leaves_only_its_own_masks(tmp_path, capsys):
-    robot = load(str(LOWER), root="free")
-    cam = Camera.default()
-    v = walking_video(robot, cam, frames=16, seed=2)
-    long, short = tmp_path / "long", tmp_path / "short"
-    long.mkdir()
-    short.mkdir()
-    for i, f in enumerate(v.frames):
-        cv2.imwrite(str(long / f"f{i:02d}.png"), f)
-        if i < 12:
-            cv2.imwrite(str(short / f"f{i:02d}.png"), f)
-    cam.to_json(tmp_path / "cam.json")
+def test_a_shorter_video_into_the_same_folder_leaves_only_its_own_masks(clip16, tmp_path, capsys):
+    cam, v = clip16
     out = tmp_path / "o"
-    for video in (long, short):
-        assert main(["track", str(LOWER), "--video", str(video), "--camera", str(tmp_path / "cam.json"),
-                     "--no-progress", "--no-video", "-o", str(out)]) == 0, capsys.readouterr().err
+    for args in (_write_clip(tmp_path / "long", v.frames, cam), _write_clip(tmp_path / "short", v.frames[:12], cam)):
+        assert main([*args, "-o", str(out)]) == 0, capsys.readouterr().err
     # frames 12-15's masks, trajectory.csv, poses.npz, animation.html and joint_angles.png
     assert f"note: {out}: removed 8 file(s) of an earlier run" in capsys.readouterr().err
     assert sorted(p.name for p in (out / "masks" / "cam0").iterdir()) == [f"frame_{k:05d}.png" for k in range(12)]
