@@ -1,7 +1,7 @@
-"""Golden files: the committed urdf_out/ is exactly what the compiler writes today.
+"""Golden files: the committed tests/golden/ is exactly what the compiler writes today.
 
 If a change to the compiler is intended, regenerate with
-``kms2pin export specs/<name>.kms`` for each spec and review the diff.
+``kms2pin export specs/<name>.kms -o tests/golden`` for each spec and review the diff.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from kms2pin.mesh import MESH_NAME, sphere_obj
 from kms2pin.robot import Robot
 
 ROOT = Path(__file__).resolve().parents[1]
-GOLDEN = ROOT / "urdf_out"
+GOLDEN = ROOT / "tests" / "golden"
 
 
 def _same(actual: str, golden: Path) -> None:
