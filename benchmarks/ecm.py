@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import ast
 import copy
-import inspect
 import os
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from kms2pin.ecm.camera import Camera  # noqa: E402
 from kms2pin.ecm.evaluate import evaluate  # noqa: E402
 from kms2pin.ecm.motions import make_motion  # noqa: E402
+from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.ecm.tracker import Tracker, Trajectory  # noqa: E402
 from kms2pin.robot import load  # noqa: E402
@@ -189,7 +189,7 @@ def main():
             options[key.strip()] = ast.literal_eval(value.strip())
         except (ValueError, SyntaxError):  # a bare word: a string (prediction=previous)
             options[key.strip()] = value.strip()
-    unknown = [k for k in options if k not in inspect.signature(Tracker).parameters]
+    unknown = [k for k in options if k not in OPTION_GROUP]
     if unknown:
         p.error(f"--option: Tracker has no option {', '.join(unknown)}")
     if a.only:

@@ -18,9 +18,10 @@ from collections.abc import Callable
 import numpy as np
 import pinocchio as pin
 
-from kms2pin.ecm import Camera, body_bbox, e_step, projected_density, render_mask
+from kms2pin.ecm import Camera, body_bbox, projected_density, render_mask
 from kms2pin.ecm.mstep import body_image
 from kms2pin.native import kernels
+from kms2pin.reference.occlusion import e_step
 
 
 def median_time(fn: Callable[[], object], repeat: int = 200) -> tuple[float, float]:

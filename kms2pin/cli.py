@@ -13,13 +13,10 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__, commands
-from .errors import Kms2pinError
+from .errors import Kms2pinError, UsageError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
-
-
-class UsageError(Exception):
-    """A command was called wrongly (exit status 2)."""
+__all__ = ["EXIT_MODEL", "EXIT_OK", "EXIT_USAGE", "UsageError", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -20,6 +20,10 @@ class Kms2pinError(Exception):
     """Root of every error kms2pin raises for a user's mistake."""
 
 
+class UsageError(Exception):
+    """A command was called wrongly (exit status 2), e.g. a bad option value."""
+
+
 @dataclass(frozen=True)
 class Diagnostic:
     """One located message about a spec file (1-based line and column)."""

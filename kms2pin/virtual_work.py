@@ -22,6 +22,7 @@ import math
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -483,3 +484,159 @@ def perturbed_targets(
     t[:, 3:4] = w1 * w2 - np.sum(v1 * v2, axis=1, keepdims=True)
     t[:, 4:] = w1 * v2 + w2 * v1 + np.cross(v1, v2)
     return t
+
+
+class SpringTerm(Protocol):
+    """An extra energy term of :func:`pose_spring_update` (a prior): its stiffness is set
+    once per update from the springs' first Newton matrix, then it adds its term to the
+    Newton system at every configuration tried."""
+
+    def stiffness(self, A: np.ndarray) -> float:
+        """The term's stiffness, from the springs' Newton matrix ``A`` (nv, nv) at the start."""
+
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
+        """Add the term (stiffness ``k``) to ``A`` and ``g`` at ``q`` (``data`` after a
+        forward pass at ``q``); return its energy."""
+
+
+#: halvings of a pose-spring step that raises the energy before the update gives up
+BACKTRACK = 4
+
+
+def pose_spring_update(
+    robot: Robot,
+    q: np.ndarray,
+    targets: np.ndarray,
+    K: np.ndarray,
+    *,
+    iterations: int = 3,
+    terms: Sequence[SpringTerm] = (),
+) -> np.ndarray:
+    """Virtual-work equilibrium with a full 6x6 spring per body (§2.3.3, eq. 2.28).
+
+    The springs act on each body's pose error ``e_i = (t_i - t'_i, log(R_i R'_iᵀ))``
+    (world axes; translation in spec units, rotation in radians) with stiffness ``K_i``;
+    the equilibrium ``Σ J_iᵀ K_i e_i = 0`` (Bᵀ Q = 0 with Q_i = -K_i e_i) is found by at
+    most ``iterations`` Gauss-Newton steps in joint space, plus ``terms``' energies.
+    This is the thesis's per-coordinate stiffness (eq. 2.33) one step further: the
+    coordinates of a body are coupled in its own directions, not the world's.
+
+    Each step must lower the energy: a step that raises it is halved up to
+    :data:`BACKTRACK` times, and if none lowers it the update stops there.  Joints at
+    a spec limit that the step pushes further are held there and the step is solved
+    for the others (projected Gauss-Newton's active set); every step is clipped into
+    the limits.
+
+    Args:
+        robot: the loaded system.
+        q: start configuration (Pinocchio ``q``).
+        targets: (n_bodies, 7) target poses, ``[t, x, y, z, w]`` (``pin.SE3ToXYZQUAT``).
+        K: (n_bodies, 6, 6) stiffness in (world translation, world rotation vector).
+        iterations: most Gauss-Newton steps.
+        terms: extra energy terms (priors), added in order.
+
+    Returns:
+        The equilibrium configuration.
+    """
+    model, data = robot.model, robot.data
+    n, nv = len(targets), model.nv
+    st = _structure(robot)
+    native = NATIVE
+    K36 = K.reshape(n, 36)
+    limited = st.limits is not None
+    if limited:
+        qi, vi, lo, hi = st.limits
+        lo, hi = lo + 1e-12, hi - 1e-12
+    ks: list[float] = []  # the terms' stiffnesses, fixed at the first configuration's springs
+
+    def springs(q):
+        """Newton system A, g and energy of the springs (and terms) at q."""
+        pin.computeJointJacobians(model, data, q)
+        X = body_frames(model, data, robot.frame_ids, st, native)
+        if native:  # the lines below in one C call (kms2pin/_kernels.c)
+            A, g = np.empty((nv, nv)), np.empty(nv)
+            energy = _kernels.pose_springs(data.J, X, targets, K36, st.support, A, g)
+        else:
+            A, g, energy = _pose_springs(data.J, X, targets, K, st.support)
+        if not ks:
+            ks.extend(t.stiffness(A) for t in terms)
+        for t, k in zip(terms, ks):
+            energy += t.add(A, g, q, data, k)
+        return A, g, energy
+
+    A, g, energy = springs(q)
+    for _ in range(iterations):
+        dq = _newton_step(A, g, native)
+        if limited:
+            # a joint at a limit that the step pushes further is held there, and the
+            # step is solved for the others: its clipped step need not lower the energy
+            blocked = np.zeros(nv, dtype=bool)
+            blocked[vi] = ((q[qi] <= lo) & (dq[vi] < 0)) | ((q[qi] >= hi) & (dq[vi] > 0))
+            if blocked.any():
+                free = ~blocked
+                dq = np.zeros(nv)
+                dq[free] = _newton_step(np.ascontiguousarray(A[np.ix_(free, free)]), g[free], native)
+        for _ in range(BACKTRACK + 1):
+            q_new = pin.integrate(model, q, dq)
+            if limited:  # projected Gauss-Newton: the spec's joint limits
+                q_new = robot.clamp(q_new)
+            A_new, g_new, e_new = springs(q_new)
+            if e_new <= energy * (1.0 + 1e-12):
+                break
+            dq = 0.5 * dq
+        else:
+            break  # no step lowers the energy: q is (close to) a minimum
+        q, A, g, energy = q_new, A_new, g_new, e_new
+        if np.abs(dq).max() < 1e-7:
+            break
+    return q
+
+
+def _pose_springs(Jw: np.ndarray, X: np.ndarray, T: np.ndarray, K: np.ndarray, support: np.ndarray):
+    """Newton matrix, gradient and energy of the pose springs (NumPy; the C kernel
+    ``pose_springs`` is the same arithmetic)."""
+    n, nv = len(X), Jw.shape[1]
+    # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
+    e = np.empty((n, 6))
+    e[:, :3] = X[:, :3] - T[:, :3]
+    e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
+    # LOCAL_WORLD_ALIGNED Jacobians at the body centres from data.J (world frame)
+    J = np.empty((n, 6, nv))
+    J[:, 3:] = Jw[3:][None] * support[:, None, :]
+    J[:, :3] = (Jw[:3][None] + np.cross(Jw[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * support[:, None, :]
+    KJ = (K @ J).reshape(6 * n, nv)
+    A = J.reshape(6 * n, nv).T @ KJ
+    g = KJ.T @ e.ravel()
+    return A, g, 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
+
+
+def _newton_step(A: np.ndarray, g: np.ndarray, native: bool) -> np.ndarray:
+    """The Gauss-Newton step -A⁻¹ g, with A shifted by 1e-9 of its largest diagonal entry
+    (Cholesky in C, else LU; ``A`` may be changed)."""
+    n = len(g)
+    shift = 1e-9 * max(float(A.diagonal().max()), 1e-300) if n else 0.0
+    dq = np.empty(n)
+    if not (native and _kernels.solve_shifted(A, g, shift, dq)):
+        A[np.diag_indices(n)] += shift
+        dq = -np.linalg.solve(A, g)
+    return dq
+
+
+def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ⊗ conj(b) for (n, 4) quaternions in (x, y, z, w) order."""
+    av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
+    out = np.empty_like(a)
+    out[:, 3:] = aw * bw + np.sum(av * bv, axis=1, keepdims=True)
+    out[:, :3] = bw * av - aw * bv - np.cross(av, bv)
+    return out
+
+
+def _log_quat(qr: np.ndarray) -> np.ndarray:
+    """Rotation vectors (n, 3) of unit quaternions (n, 4), (x, y, z, w): angle in [0, pi]."""
+    v, w = qr[:, :3], qr[:, 3]
+    sign = np.where(w < 0, -1.0, 1.0)
+    v, w = v * sign[:, None], w * sign
+    nv = np.linalg.norm(v, axis=1)
+    small = nv < 1e-12
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv))
+    return v * scale[:, None]

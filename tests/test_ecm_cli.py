@@ -82,7 +82,9 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         err = capsys.readouterr().err
         # the model has joint limits: the note names the upright prior alone
         assert ("--upright 0.1 holds" in err) == (name != "off") and "--rest-prior" not in err
-        meta = json.loads((out / "meta.json").read_text())
+        options = json.loads((out / "meta.json").read_text())["options"]
+        meta = {name: value for group in options.values() for name, value in group.items()}
+        meta["size_calibration"] = meta["calibrate_sizes"]
         with np.load(out / "poses.npz") as z:
             scales = z["body_scales"]
         assert meta["binned_hypotheses"] == (name == "binned")

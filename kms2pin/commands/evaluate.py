@@ -9,11 +9,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..cli import UsageError
 from ..ecm.camera import Camera
 from ..ecm.evaluate import evaluate
 from ..ecm.tracker import Trajectory
-from ..errors import InputDataError
+from ..errors import InputDataError, UsageError
 from ..jsonfile import read_json
 from ..robot import Robot
 from ._common import existing_file, read_model

@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 
-from ..cli import UsageError
+from ..errors import UsageError
 from ..robot import Robot
 from ._common import add_spec_argument, read_model
 

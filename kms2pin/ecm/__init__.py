@@ -1,8 +1,8 @@
-"""ECM tracking (thesis §2.1): cameras, ellipsoid images, densities, the E-step, and the
-tracker with its synthetic data and evaluation.
+"""ECM tracking (thesis §2.1): cameras, ellipsoid images, densities, and the tracker with
+its options, synthetic data and evaluation.
 
 The image geometry (:mod:`~kms2pin.ecm.camera`, :mod:`~kms2pin.ecm.projection`,
-:mod:`~kms2pin.ecm.density`, :mod:`~kms2pin.ecm.estep`, :mod:`~kms2pin.ecm.raycast`)
+:mod:`~kms2pin.ecm.density`, :mod:`~kms2pin.ecm.raycast`)
 is independent of the rest of kms2pin: bodies are ``(world_T_body, semi_axes)`` given
 as ``pin.SE3`` and arrays.  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
 :class:`kms2pin.Robot`.
@@ -10,10 +10,22 @@ as ``pin.SE3`` and arrays.  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.density import body_depth, density_region, projected_density
-from kms2pin.ecm.estep import EStepResult, e_step
 from kms2pin.ecm.evaluate import evaluate
 from kms2pin.ecm.limbs import limb_joints
 from kms2pin.ecm.motions import MOTIONS, make_motion
+from kms2pin.ecm.options import (
+    PEOPLE_ONE_CAMERA,
+    SEGMENTED_MASKS,
+    HypothesisOptions,
+    IterationOptions,
+    LimbSearchOptions,
+    MStepOptions,
+    PriorOptions,
+    SilhouetteOptions,
+    SizeOptions,
+    SpringOptions,
+    TrackerOptions,
+)
 from kms2pin.ecm.projection import (
     BBox,
     Ellipse,
@@ -27,26 +39,34 @@ from kms2pin.ecm.projection import (
 )
 from kms2pin.ecm.raycast import render_labels, render_mask
 from kms2pin.ecm.synth import synthesize
-from kms2pin.ecm.tracker import SEGMENTED_MASKS, Tracker
+from kms2pin.ecm.tracker import Tracker
 from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 
 __all__ = [
     "BBox",
     "Camera",
-    "EStepResult",
     "Ellipse",
     "FrameResult",
+    "HypothesisOptions",
+    "IterationOptions",
+    "LimbSearchOptions",
     "MOTIONS",
+    "MStepOptions",
+    "PEOPLE_ONE_CAMERA",
+    "PriorOptions",
     "ProjectionError",
     "SEGMENTED_MASKS",
+    "SilhouetteOptions",
+    "SizeOptions",
+    "SpringOptions",
     "Tracker",
+    "TrackerOptions",
     "Trajectory",
     "TrajectoryCsvWriter",
     "Visibility",
     "body_bbox",
     "body_depth",
     "density_region",
-    "e_step",
     "ellipse_parameters",
     "ellipsoid_conic",
     "ellipsoid_visibility",

@@ -1,190 +1,191 @@
-"""The E-step (thesis §2.1.2): soft assignment of foreground pixels to bodies, with occlusion.
+"""The tracker's E-step (thesis §2.1.2): the union of the bodies' sharp silhouettes.
 
-For a foreground pixel, let ``f_i`` be body i's projected density
-(:mod:`kms2pin.ecm.density`).  Bodies claim the pixel front to back::
-
-    w_i = f_i * prod_{j nearer than i at this pixel} (1 - f_j)
-
-and the responsibilities are ``r_i = w_i / (sum_j w_j + ε)`` for the bodies
-and ``ε / (sum_j w_j + ε)`` for the outlier class, ``ε`` being the outlier
-density.  Responsibilities ``<= min_weight`` are dropped and the rest
-renormalized, so bodies plus outlier sum to exactly 1 on every foreground
-pixel.
-
-"Nearer" is decided per pixel from the outer ellipsoid along that pixel's ray
-(every pixel with ``f_i > 0`` hits it).  ``occlusion="middle"`` (default) uses
-the depth of the ray's closest approach to the centre in the ellipsoid metric
-(the middle of the chord through the outer ellipsoid; for ``outer = k*inner``
-also the middle of the inner chord).  Unlike the entry depth it does not favour
-bodies with wider uncertainty margins, whose outer surfaces stick out further
-towards the camera.  ``occlusion="entry"`` uses the outer surface's first hit.
-
-Each body is evaluated only inside its outer silhouette's bounding box (and
-the mask's), with NumPy over all pixels at once.
+In every camera each body's sharp silhouette ``s_j = σ(h_j)`` (:mod:`kms2pin.ecm.mstep`)
+is evaluated at the current, kinematically valid pose, and every body learns how much
+of each pixel the *others* explain, ``o_i = 1 - Π_{j≠i} (1 - s_j)`` (soft labels;
+occlusion needs no depth order, a silhouette being the union of the bodies' images).
+The union is accumulated as ``Σ_j log(1 - s_j)`` in a per-camera scratch image that is
+re-zeroed over the bodies' boxes only.  With an outlier class (``outlier > 0``) each
+pixel also gets its inlier responsibility ``p / (p + outlier)``, ``p`` its probability
+under a union whose edge is at least ``outlier_px`` wide.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from kms2pin.ecm._se3 import inner_outer_arrays
-from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.density import (
-    BodyRays,
-    closest_approach_depth,
-    density_from_radii,
-    first_hit_depth,
-    grid_monomials,
-    min_radius_sq,
-)
-from kms2pin.ecm.projection import BBox, body_bbox
-from kms2pin.errors import InputDataError
+from ..native import kernels as _kernels
+from . import mstep as _mstep
+from .camera import Camera
+from .mstep import BodyImage, BodyView, body_images, closest_approach, world_rays
+from .projection import BBox
 
-BodySpec = tuple[pin.SE3, Sequence[float] | np.ndarray, Sequence[float] | np.ndarray]
+__all__ = ["UnionEStep"]
 
 
-@dataclass(frozen=True)
-class EStepResult:
-    """Soft labels of one frame.
+class UnionEStep:
+    """The E-step with its buffers: one scratch union image per camera and size.
 
-    ``pixels[i]`` (N_i,2) float ``(u, v)`` and ``weights[i]`` (N_i,) are the
-    foreground pixels body i received (raster order) and their
-    responsibilities; ``outlier`` (H,W) is the outlier responsibility (0 off
-    the foreground).
+    Args:
+        max_pixels: pixels per body and camera above which a body's view is subsampled
+            (every ``stride``-th row and column) for the M-step.
+        outlier, outlier_px: the outlier class (0: off) and its least edge width (pixels).
+        fused: do a camera in one C call when it can (the same views as body by body).
+
+    :attr:`fused_cameras` counts the cameras the last call did in one C call.
     """
 
-    pixels: tuple[np.ndarray, ...]
-    weights: tuple[np.ndarray, ...]
-    outlier: np.ndarray
+    def __init__(self, max_pixels: int, outlier: float = 0.0, outlier_px: float = 3.0, fused: bool = True):
+        self.max_pixels = int(max_pixels)
+        self.outlier, self.outlier_px = float(outlier), float(outlier_px)
+        self.fused = bool(fused)
+        self.fused_cameras = 0
+        self._scratch: dict[tuple, np.ndarray] = {}
 
-    def weight_image(self, i: int) -> np.ndarray:
-        """Body i's responsibilities painted into an (H,W) image (0 elsewhere)."""
-        img = np.zeros_like(self.outlier)
-        p = self.pixels[i].astype(np.intp)
-        img[p[:, 1], p[:, 0]] = self.weights[i]
-        return img
+    def __call__(
+        self, poses: Sequence[pin.SE3], Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray,
+        cameras: Sequence[Camera], masks: Sequence[np.ndarray], delta_px: float,
+    ) -> list[list[BodyView]]:
+        """Every body's :class:`BodyView` per camera seeing it, the bodies at ``poses``
+        (rotations ``Rs`` (n, 3, 3), centres ``ts`` (n, 3), world) with inner semi-axes
+        ``inner`` (n, 3); ``masks`` bool or float64 fractions (binned), ``delta_px`` the
+        edge width in pixels."""
+        n = len(poses)
+        native = _mstep.NATIVE
+        As = (Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1) if native else None
+        views: list[list[BodyView]] = [[] for _ in range(n)]
+        self.fused_cameras = 0
+        for c, (cam, mask) in enumerate(zip(cameras, masks)):
+            log_free = self._zeroed(c, cam.shape)  # Σ_j log(1 - s_j)
+            if native and self.fused and self.outlier <= 0 and cam.dist is None:
+                fused = self._camera_fused(cam, mask, Rs, ts, As, inner, log_free, delta_px)
+                if fused is not None:  # _camera below in one C call
+                    self.fused_cameras += 1
+                    for i, v in enumerate(fused):
+                        if v is not None:
+                            views[i].append(v)
+                    self._scratch[c, cam.shape] = log_free
+                    continue
+            for i, v in enumerate(self._camera(cam, mask, poses, Rs, ts, As, inner, log_free, delta_px)):
+                if v is not None:
+                    views[i].append(v)
+            self._scratch[c, cam.shape] = log_free
+        return views
 
+    def _camera(self, cam, mask, poses, Rs, ts, As, inner, log_free, delta_px) -> list[BodyView | None]:
+        """One camera's views, body by body (NumPy, or the per-body C kernels)."""
+        n = len(poses)
+        native = As is not None
+        images: list = [None] * n
+        log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
+        widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
+        # the union needs every pixel: the E-step works at full resolution
+        body_imgs = body_images(cam, poses, inner, delta_px, max_pixels=10**9, arrays=(Rs, ts))
+        es = cam.centre - ts
+        for i, img in enumerate(body_imgs):
+            if img is None:
+                continue
+            if native:  # the lines below, per pixel in C (kms2pin/_kernels.c)
+                img.s = np.empty(len(img.dirs))  # softplus(h) = -log(1 - s)
+                b = img.box
+                _kernels.estep_body(
+                    img.dirs, As[i], es[i], 1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0,
+                    b.u1 - b.u0, img.s, log_free_o, widen,
+                )
+                images[i] = img
+                continue
+            a2, _ = closest_approach(img, poses[i].rotation, poses[i].translation, inner[i], False)
+            h = (1.0 - a2) / (2.0 * img.delta)
+            img.s = np.logaddexp(0.0, h)  # softplus(h) = -log(1 - s)
+            log_free[img.slices] -= img.s.reshape(img.shape)
+            if log_free_o is not None:
+                log_free_o[img.slices] -= np.logaddexp(0.0, widen * h).reshape(img.shape)
+            images[i] = img
+        weight = None
+        if log_free_o is not None:
+            # outlier class: p(y | model) of the union (edge >= outlier_px wide) against a
+            # constant outlier density; inlier responsibility = p / (p + ε)
+            miss = np.exp(log_free_o)  # 1 - M
+            p_in = mask * (1.0 - miss) + (1.0 - mask) * miss  # mask: 0/1 or a fraction
+            weight = p_in / (p_in + self.outlier)
+        out: list[BodyView | None] = [None] * n
+        for i, img in enumerate(images):
+            if img is None:
+                continue
+            if native:
+                b = img.box
+                o, y = np.empty(len(img.s)), np.empty(len(img.s))
+                _kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
+            else:
+                others = log_free[img.slices].ravel() + img.s
+                o = -np.expm1(np.minimum(others, 0.0))
+                y = mask[img.slices].ravel().astype(float)  # 0/1, or a binned fraction
+            wt = None if weight is None else weight[img.slices].ravel()
+            out[i] = self._subsampled(img, y, o, wt)
+        for img in body_imgs:  # zeroed again for the next E-step
+            if img is not None:
+                log_free[img.slices] = 0.0
+        return out
 
-def e_step(
-    mask: np.ndarray,
-    camera: Camera,
-    bodies: Sequence[BodySpec],
-    outlier: float = 0.05,
-    *,
-    min_weight: float = 1e-3,
-    occlusion: str = "middle",
-    source: str = "mask",
-) -> EStepResult:
-    """Assign the foreground of ``mask`` (H,W bool) to ``bodies`` ``(world_T_body, inner, outer)``.
-
-    ``outlier`` is the outlier class's constant density (> 0); ``source``
-    names the mask (file and frame) in error messages.
-    """
-    if not outlier > 0:
-        raise ValueError(f"outlier density must be > 0, got {outlier}")
-    if occlusion not in ("middle", "entry"):
-        raise ValueError(f"occlusion must be 'middle' or 'entry', got {occlusion!r}")
-    fg = _check_mask(mask, camera, source)
-    H, W = camera.shape
-    n = len(bodies)
-    rows = np.flatnonzero(fg.any(axis=1))
-    cols = np.flatnonzero(fg.any(axis=0))
-    if len(rows) == 0:
-        empty = tuple(np.zeros((0, 2)) for _ in range(n))
-        return EStepResult(empty, tuple(np.zeros(0) for _ in range(n)), np.zeros((H, W)))
-    fg_box = BBox(int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
-
-    mono = grid_monomials(camera)
-    idx_parts, body_parts, f_parts, depth_parts = [], [], [], []
-    for i, (pose, inner, outer) in enumerate(bodies):
-        li, lo = inner_outer_arrays(inner, outer)
-        box = body_bbox(camera, pose, lo)
-        box = box.intersect(fg_box) if box is not None else None
-        if box is None:
-            continue
-        rays = BodyRays(camera, pose, mono[box.slices])
-        out_terms = rays.terms(lo)
-        a = min_radius_sq(*rays.terms(li))
-        b = min_radius_sq(*out_terms)
-        f = density_from_radii(np.sqrt(a, out=a), np.sqrt(b, out=b))
-        sel = fg[box.slices] & (f > 0)
-        r, c = np.nonzero(sel)
-        if len(r) == 0:
-            continue
-        depth_fn = closest_approach_depth if occlusion == "middle" else first_hit_depth
-        depth = depth_fn(out_terms[0], out_terms[1][sel], out_terms[2][sel])
-        idx_parts.append((r + box.v0) * W + (c + box.u0))
-        body_parts.append(np.full(len(r), i, dtype=np.intp))
-        f_parts.append(f[sel])
-        depth_parts.append(depth)
-
-    outlier_map = np.zeros((H, W))
-    if not idx_parts:
-        outlier_map[fg] = 1.0
-        empty = tuple(np.zeros((0, 2)) for _ in range(n))
-        return EStepResult(empty, tuple(np.zeros(0) for _ in range(n)), outlier_map)
-
-    idx = np.concatenate(idx_parts)
-    body = np.concatenate(body_parts)
-    f = np.concatenate(f_parts)
-    depth = np.concatenate(depth_parts)
-
-    order = np.lexsort((body, depth, idx))  # by pixel, then front to back (ties: body order)
-    idx, body, f = idx[order], body[order], f[order]
-    run, first = _runs(idx)  # entry -> claimed pixel; first entry of each claimed pixel
-    claimed = idx[first]  # flat index of each claimed pixel
-    w = f * _transmittance(run, first, 1.0 - f)
-
-    total = np.add.reduceat(w, first)
-    keep = w > min_weight * (total[run] + outlier)
-    idx, body, w, run = idx[keep], body[keep], w[keep], run[keep]
-    total = np.bincount(run, weights=w, minlength=len(first)) + outlier
-    resp = w / total[run]
-    outlier_map[fg] = 1.0  # foreground no body claims
-    outlier_map.reshape(-1)[claimed] = outlier / total
-
-    by_body = np.argsort(body, kind="stable")
-    counts = np.bincount(body, minlength=n)
-    splits = np.cumsum(counts)[:-1]
-    idx_b = np.split(idx[by_body], splits)
-    resp_b = np.split(resp[by_body], splits)
-    pixels = tuple(np.stack([k % W, k // W], axis=1).astype(float) for k in idx_b)
-    return EStepResult(pixels, tuple(resp_b), outlier_map)
-
-
-def _runs(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For sorted ``keys``: the run number of each entry and the first entry of each run."""
-    start = np.ones(len(keys), dtype=bool)
-    start[1:] = keys[1:] != keys[:-1]
-    return np.cumsum(start) - 1, np.flatnonzero(start)
-
-
-def _transmittance(run: np.ndarray, first: np.ndarray, factor: np.ndarray) -> np.ndarray:
-    """Exclusive running product of ``factor`` within each run (see :func:`_runs`)."""
-    zero = factor <= 0.0
-    logf = np.log(np.where(zero, 1.0, factor))
-    cum_log = np.cumsum(logf) - logf  # exclusive
-    cum_zero = np.cumsum(zero) - zero
-    cum_log -= cum_log[first][run]
-    cum_zero -= cum_zero[first][run]
-    return np.where(cum_zero > 0, 0.0, np.exp(cum_log))
-
-
-def _check_mask(mask: np.ndarray, camera: Camera, source: str) -> np.ndarray:
-    m = np.asarray(mask)
-    if m.ndim != 2:
-        raise InputDataError(f"{source}: a mask must be a 2-D image, got shape {m.shape}")
-    if m.shape != camera.shape:
-        cam = f" '{camera.name}'" if camera.name else ""
-        raise InputDataError(
-            f"{source}: mask is {m.shape[1]}x{m.shape[0]} but camera{cam} is {camera.width}x{camera.height}"
+    def _camera_fused(self, cam: Camera, mask, Rs, ts, As, inner, log_free, delta_px: float) -> list | None:
+        """One camera's E-step in one C call (``kms2pin._kernels.estep_camera``): every
+        body's :class:`BodyView` (None: out of view), the same as the per-body kernels
+        give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
+        path (straddling the camera plane or degenerate)."""
+        n = len(Rs)
+        status, boxes, delta = _mstep.body_box_arrays(cam, Rs, ts, inner, delta_px, _mstep.SLACK_PX)
+        if (status == 1).any():
+            return None
+        seen = status == 2
+        boxes[~seen] = 0.0
+        counts = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+        offset = np.zeros(n + 1)
+        np.cumsum(counts, out=offset[1:])
+        N = int(offset[-1])
+        dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
+        inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
+        _kernels.estep_camera(
+            world_rays(cam), As.reshape(n, 9), cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask),
+            log_free, dirs, sp, o, y,
         )
-    if m.dtype == bool:
-        return m
-    if m.dtype.kind in "iuf" and np.all((m == 0) | (m == 1)):
-        return m.astype(bool)
-    raise InputDataError(f"{source}: mask must be boolean (or 0/1), got dtype {m.dtype}")
+        out: list = [None] * n
+        ib, off = boxes.astype(int).tolist(), offset.astype(int).tolist()
+        for i in np.flatnonzero(seen).tolist():
+            a, b = off[i], off[i + 1]
+            img = BodyImage(cam, BBox(*ib[i]), 1, dirs[a:b], float(delta[i]))
+            img.s = sp[a:b]
+            out[i] = self._subsampled(img, y[a:b], o[a:b], None)
+        return out
+
+    def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:
+        """Camera ``c``'s scratch image of ``shape`` for the union, all zeros: the last
+        E-step's, which re-zeroed it over the bodies' boxes only (a fresh 320x240 array
+        a camera and iteration costs more than the boxes' pixels).  It is taken out
+        until then, so an E-step that raised leaves none behind."""
+        buf = self._scratch.pop((c, shape), None)
+        return buf if buf is not None else np.zeros(shape)
+
+    def scratch_images(self) -> list[np.ndarray]:
+        """The scratch images kept for the next E-step (each all zeros between E-steps)."""
+        return list(self._scratch.values())
+
+    def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
+        """The M-step's view of a full-resolution body image: every ``stride``-th row and
+        column when the box holds more than ``max_pixels`` pixels."""
+        if len(y) <= self.max_pixels:
+            return BodyView(img, y, o, weight)
+        rows, cols = img.shape
+        stride = max(1, int(np.ceil(np.sqrt(rows * cols / self.max_pixels))))
+        if stride == 1:
+            return BodyView(img, y, o, weight)
+        b = img.box
+        rays = world_rays(img.camera)[b.v0 : b.v1 : stride, b.u0 : b.u1 : stride].reshape(-1, 3)
+        sub = BodyImage(img.camera, b, stride, rays, img.delta)
+
+        def pick(a):
+            return np.ascontiguousarray(a.reshape(rows, cols)[::stride, ::stride]).ravel()
+
+        return BodyView(sub, pick(y), pick(o), None if weight is None else pick(weight))

@@ -170,7 +170,7 @@ def body_images(
         ]
     inner = np.asarray(inners, dtype=float).reshape(n, 3)
     Rs, ts = pose_arrays(poses) if arrays is None else arrays
-    status, boxes, delta = _boxes(camera, Rs, ts, inner, delta_px, slack_px)
+    status, boxes, delta = body_box_arrays(camera, Rs, ts, inner, delta_px, slack_px)
     rays = world_rays(camera)
     out: list[BodyImage | None] = []
     for i, (st, (u0, v0, u1, v1), dl) in enumerate(zip(status.tolist(), boxes.astype(int).tolist(), delta.tolist())):
@@ -190,7 +190,7 @@ def pose_arrays(poses: Sequence[pin.SE3]) -> tuple[np.ndarray, np.ndarray]:
     return np.array([P.rotation for P in poses]), np.array([P.translation for P in poses])
 
 
-def _boxes(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, delta_px: float, slack_px: float):
+def body_box_arrays(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, delta_px: float, slack_px: float):
     """:func:`body_images`' per-body status (0: not in view, 1: per-body path, 2: box),
     boxes (n, 4: u0, v0, u1, v1) and edge widths of the bodies at rotations ``Rs`` and
     centres ``ts``, vectorized over bodies (or in C)."""
@@ -246,7 +246,7 @@ def _closest(d: np.ndarray, A: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, n
     return e + s[:, None] * d, Ae + s[:, None] * Ad
 
 
-def _geometry(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, jac: bool):
+def closest_approach(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, jac: bool):
     """``a²`` per pixel and, if ``jac``, its derivative -2 [g, q*×g] (N, 6) (module docstring)."""
     A = (R / inner**2) @ R.T
     e = img.camera.centre - t
@@ -294,7 +294,7 @@ def _moved(pose: pin.SE3, delta: np.ndarray) -> pin.SE3:
     return pin.SE3(pin.exp3(delta[3:]) @ pose.rotation, pose.translation + delta[:3])
 
 
-def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: bool):
+def body_cost(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: bool):
     """Cost sum wt r^2, gradient, Gauss-Newton matrix (6x6) and evidence of one body."""
     cost = 0.0
     H = np.zeros((6, 6))
@@ -312,7 +312,7 @@ def _evaluate(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: 
             evidence += e
         return cost, grad, H, evidence
     for v in views:
-        a2, D = _geometry(v.image, R, t, inner, jac)
+        a2, D = closest_approach(v.image, R, t, inner, jac)
         c, e = _view_terms(v, a2, D, H, grad)
         cost += c
         evidence += e
@@ -373,7 +373,7 @@ def fit_body(
     S = np.r_[np.full(3, size), np.ones(3)]
     pose = pose0
     offset = np.zeros(6)  # accumulated move from pose0 (first order in rotation)
-    cost, grad, H, evidence = _evaluate(views, pose, inner, True)
+    cost, grad, H, evidence = body_cost(views, pose, inner, True)
     if not np.any(H):
         return BodyFit(pose0, H, evidence, cost)
     Hn = S[:, None] * H * S[None, :]
@@ -394,7 +394,7 @@ def fit_body(
                 stepn *= min(1.0, max_step / max(big, 1e-300))
             step = stepn * S
             cand = _moved(pose, step)
-            c2, g2, H2, e2 = _evaluate(views, cand, inner, True)
+            c2, g2, H2, e2 = body_cost(views, cand, inner, True)
             new_off = offset + step
             p_old = 0.5 * prior * float(np.sum((offset / S) ** 2))
             p_new = 0.5 * prior * float(np.sum((new_off / S) ** 2))
@@ -426,7 +426,7 @@ def fit_bodies(
     ]
 
 
-def _scale_evaluate(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inner: np.ndarray):
+def body_scale_cost(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inner: np.ndarray):
     """Cost, gradient and Gauss-Newton matrix (3x3) of one body's silhouette fit in the
     log semi-axes of its inner ellipsoid, the pose held (:func:`fit_body_scale`)."""
     cost, grad, H = 0.0, np.zeros(3), np.zeros((3, 3))
@@ -469,7 +469,7 @@ def fit_body_scale(
     x = np.zeros(3)
     if not views:
         return np.ones(3), np.zeros((3, 3))
-    cost, grad, H = _scale_evaluate(views, R, t, inner)
+    cost, grad, H = body_scale_cost(views, R, t, inner)
     if not np.any(H):
         return np.ones(3), H
     lam_p = prior * float(np.max(np.diag(H)))
@@ -480,7 +480,7 @@ def fit_body_scale(
             A = H + (lam_p + lam * float(np.max(np.diag(H)))) * np.eye(3)
             step = -np.linalg.solve(A, grad + lam_p * x)
             x_new = np.clip(x + step, -max_log_scale, max_log_scale)
-            c2, g2, H2 = _scale_evaluate(views, R, t, inner * np.exp(x_new))
+            c2, g2, H2 = body_scale_cost(views, R, t, inner * np.exp(x_new))
             if 0.5 * c2 + 0.5 * lam_p * x_new @ x_new <= 0.5 * cost + 0.5 * lam_p * x @ x:
                 x, cost, grad, H = x_new, c2, g2, H2
                 lam = max(lam * 0.3, 1e-6)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 import tempfile
 import warnings
 from collections.abc import Iterator
@@ -212,3 +213,96 @@ def remove_masks_from(folder: str | os.PathLike, first: int) -> int:
     for p in stale:
         p.unlink()
     return len(stale)
+
+
+# ---------------------------------------------------------------- mask folders
+_FRAME_NUMBER = re.compile(r"(\d+)(?=\.png$)", re.IGNORECASE)
+_PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _frames_in(folder: Path) -> dict[int, Path]:
+    frames: dict[int, Path] = {}
+    for path in sorted(folder.glob("*.png")) + sorted(folder.glob("*.PNG")):
+        m = _FRAME_NUMBER.search(path.name)
+        if m is None:
+            raise InputDataError(f"{path}: cannot tell the frame number from the name (expected frame_NNNNN.png)")
+        k = int(m.group(1))
+        if k in frames and frames[k] != path:
+            raise InputDataError(f"{path}: frame {k} appears twice (also {frames[k].name})")
+        frames[k] = path
+    return frames
+
+
+def find_mask_frames(masks: Path, n_cameras: int) -> tuple[list[int], list[dict[int, Path]]]:
+    """A mask folder's frame numbers and, per camera, frame -> file (``masks/camK/`` per
+    camera, or the PNGs in ``masks`` for one); errors name gaps and missing files."""
+    if not masks.exists():
+        raise FileNotFoundError(2, "no such folder", str(masks))
+    if not masks.is_dir():
+        raise InputDataError(f"{masks}: --masks must be a folder")
+    cam_dirs = [masks / f"cam{c}" for c in range(n_cameras)]
+    if all(d.is_dir() for d in cam_dirs):
+        per_cam = [_frames_in(d) for d in cam_dirs]
+    elif n_cameras == 1:
+        per_cam = [_frames_in(masks)]
+    else:
+        missing = [str(d) for d in cam_dirs if not d.is_dir()]
+        raise InputDataError(f"{masks}: {n_cameras} cameras but no mask folder {', '.join(missing)}")
+    where = cam_dirs if len(per_cam) > 1 or cam_dirs[0].is_dir() else [masks]
+    for d, frames in zip(where, per_cam):
+        if not frames:
+            raise InputDataError(f"{d}: no PNG masks found")
+    numbers = sorted(per_cam[0])
+    for d, frames in zip(where, per_cam):
+        nums = sorted(frames)
+        gaps = sorted(set(range(nums[0], nums[-1] + 1)) - set(nums))
+        if gaps:
+            shown = ", ".join(map(str, gaps[:10])) + (" ..." if len(gaps) > 10 else "")
+            raise InputDataError(f"{d}: missing frame(s) {shown} (frames {nums[0]}..{nums[-1]})")
+        if nums != numbers:
+            other = sorted(set(nums) ^ set(numbers))
+            raise InputDataError(f"{d}: frames differ from {where[0]}: frame(s) {', '.join(map(str, other[:10]))}")
+    return numbers, per_cam
+
+
+def _size_error(path: Path, frame: int, width: int, height: int, shape: tuple[int, int], name: str) -> InputDataError:
+    cam = f" {name}" if name else ""
+    return InputDataError(f"{path}: frame {frame}: mask is {width}x{height} but camera{cam} is {shape[1]}x{shape[0]}")
+
+
+def check_mask_sizes(per_cam: list[dict[int, Path]], numbers: list[int], shapes: list[tuple[int, int]],
+                     names: list[str]) -> None:
+    """Before anything is written: every mask's size (H, W) against its camera's
+    ``shapes``, from its PNG header (a file that is not a PNG is decoded instead)."""
+    for pc, shape, name in zip(per_cam, shapes, names):
+        for f in numbers:
+            path = pc[f]
+            try:
+                with open(path, "rb") as fh:
+                    head = fh.read(24)
+            except OSError as err:
+                raise InputDataError(f"{path}: frame {f}: cannot read: {err.strerror or err}") from None
+            if head[:8] == _PNG and head[12:16] == b"IHDR":
+                w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+                if (h, w) != shape:
+                    raise _size_error(path, f, w, h, shape, name)
+            else:
+                read_mask(path, f, shape, name)
+
+
+def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "") -> np.ndarray:
+    """Frame ``frame``'s mask (bool, (H, W) = ``shape``) from a PNG: non-zero is
+    foreground; a grey image is thresholded at 127 (with a note on stderr)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputDataError(f"{path}: frame {frame}: cannot read the image (not a PNG, or damaged)")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
+    if img.shape != shape:
+        raise _size_error(path, frame, img.shape[1], img.shape[0], shape, name)
+    scale = 255 if img.dtype == np.uint8 else np.iinfo(img.dtype).max if img.dtype.kind in "ui" else 1
+    vals = np.unique(img)
+    if not np.all(np.isin(vals, (0, scale))) and not np.all(np.isin(vals, (0, 1))):
+        print(f"note: {path}: frame {frame}: not a binary mask; thresholded at 127", file=sys.stderr)
+        return img > 127 * scale / 255
+    return img > 0

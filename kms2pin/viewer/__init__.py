@@ -8,6 +8,7 @@
 * :func:`show_static_update` -- static-update pictures as in figures 4.1-4.12.
 * :func:`animate`, :func:`write_animation_html` -- trajectories as animations.
 * :func:`screenshot` -- headless Chromium on a standalone page.
+* :func:`overlay_image` -- the tracking overlay: masks with the projected ellipses.
 
 Frames and views are explained in :mod:`kms2pin.viewer.scene` (the thesis's
 y-up world is put under a transform turning it into meshcat's z-up world).
@@ -25,6 +26,7 @@ with warnings.catch_warnings():  # meshcat's server module imports a deprecated 
 from .animation import animate, write_animation_html
 from .control import JointControl
 from .errors import PoseError, ViewerError
+from .overlay import overlay_image
 from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints
 from .render import find_chromium, read_png, screenshot
 from .robot_view import RobotView, close_visualizer, new_visualizer, save_html, save_png, show, visualizer
@@ -47,6 +49,7 @@ __all__ = [
     "frame_camera",
     "joint_angles_deg",
     "new_visualizer",
+    "overlay_image",
     "parse_pose",
     "pose_string",
     "projected_box",

@@ -9,7 +9,7 @@ from conftest import require_kernels
 
 from kms2pin.ecm import mstep
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.mstep import BodyView, _geometry, _moved, body_image, body_images, fit_body
+from kms2pin.ecm.mstep import BodyView, _moved, body_image, body_images, closest_approach, fit_body
 from kms2pin.ecm.raycast import render_mask
 
 INNER = np.array([0.3, 0.8, 0.4])
@@ -39,13 +39,13 @@ def test_jacobian_matches_finite_differences():
     cam = Camera.look_at(position=[8, 1, 8], target=[0, 0, 8])
     pose = _pose(rng)
     img = body_image(cam, pose, INNER, 1.0)
-    a2, D = _geometry(img, pose.rotation, pose.translation, INNER, True)
+    a2, D = closest_approach(img, pose.rotation, pose.translation, INNER, True)
     h = 1e-6
     for k in range(6):
         d = np.zeros(6)
         d[k] = h
         p2 = _moved(pose, d)
-        b2, _ = _geometry(img, p2.rotation, p2.translation, INNER, False)
+        b2, _ = closest_approach(img, p2.rotation, p2.translation, INNER, False)
         np.testing.assert_allclose((b2 - a2) / h, D[:, k], atol=1e-4 * np.abs(D[:, k]).max())
 
 
@@ -111,14 +111,14 @@ def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monke
     truth = _pose(rng)
     pose = _moved(truth, np.r_[rng.normal(0, 0.03, 3), rng.normal(0, 0.05, 3)])
     views = _views(_cams(), pose, truth, delta=1.5)
-    cost, grad, H, _ = mstep._evaluate(views, pose, INNER, True)
+    cost, grad, H, _ = mstep.body_cost(views, pose, INNER, True)
     h = 1e-6
     fd = np.empty(6)
     for k in range(6):
         d = np.zeros(6)
         d[k] = h
-        fd[k] = (mstep._evaluate(views, _moved(pose, d), INNER, False)[0]
-                 - mstep._evaluate(views, _moved(pose, -d), INNER, False)[0]) / (2 * h)
+        fd[k] = (mstep.body_cost(views, _moved(pose, d), INNER, False)[0]
+                 - mstep.body_cost(views, _moved(pose, -d), INNER, False)[0]) / (2 * h)
     np.testing.assert_allclose(2 * grad, fd, atol=2e-3 * np.abs(fd).max())
     assert np.all(np.linalg.eigvalsh(H) >= -1e-9)  # a Gauss-Newton matrix
 
@@ -133,7 +133,7 @@ def test_native_and_numpy_fits_agree(monkeypatch):
     out = {}
     for native in (True, False):
         monkeypatch.setattr(mstep, "NATIVE", native)
-        out[native] = mstep._evaluate(views, pose, INNER, True)
+        out[native] = mstep.body_cost(views, pose, INNER, True)
     for a, b in zip(out[True], out[False]):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())
 
@@ -158,11 +158,11 @@ def test_size_gradient_matches_finite_differences(monkeypatch):
     monkeypatch.setattr(mstep, "H_CUT", 1e9)
     truth, views = _size_views(np.random.default_rng(11))
     R, t = truth.rotation, truth.translation
-    cost, grad, H = mstep._scale_evaluate(views, R, t, INNER)
+    cost, grad, H = mstep.body_scale_cost(views, R, t, INNER)
     h = 1e-6
     fd = np.array([
-        (mstep._scale_evaluate(views, R, t, INNER * np.exp(h * e))[0]
-         - mstep._scale_evaluate(views, R, t, INNER * np.exp(-h * e))[0]) / (2 * h)
+        (mstep.body_scale_cost(views, R, t, INNER * np.exp(h * e))[0]
+         - mstep.body_scale_cost(views, R, t, INNER * np.exp(-h * e))[0]) / (2 * h)
         for e in np.eye(3)
     ])
     np.testing.assert_allclose(2 * grad, fd, rtol=1e-6)
@@ -177,7 +177,7 @@ def test_native_and_numpy_size_fits_agree(monkeypatch):
     for native in (True, False):
         monkeypatch.setattr(mstep, "NATIVE", native)
         out[native] = (
-            mstep._scale_evaluate(views, truth.rotation, truth.translation, INNER),
+            mstep.body_scale_cost(views, truth.rotation, truth.translation, INNER),
             mstep.fit_body_scale(views, truth, INNER, iterations=4),
         )
     for a, b in zip(out[True][0] + out[True][1], out[False][0] + out[False][1]):
@@ -257,7 +257,7 @@ def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(mon
     cam = Camera.default()
     img = body_image(cam, pose, INNER, 0.5, slack_px=60.0)  # a wide margin of far pixels
     y = render_mask(cam, [(truth, INNER)])[img.slices].ravel().astype(float)
-    a2, _ = _geometry(img, pose.rotation, pose.translation, INNER, False)
+    a2, _ = closest_approach(img, pose.rotation, pose.translation, INNER, False)
     assert ((1.0 - a2) / (2.0 * img.delta)).min() < -200.0
     o, w = rng.uniform(0, 0.5, y.shape), rng.uniform(0.5, 1, y.shape)
 
@@ -275,7 +275,7 @@ def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(mon
         ("numpy", BodyView(img, y, o, w), False),
     ):
         monkeypatch.setattr(mstep, "NATIVE", native)
-        out[label] = mstep._evaluate([view], pose, INNER, True)
+        out[label] = mstep.body_cost([view], pose, INNER, True)
     for label in ("vector", "scalar"):
         for a, b in zip(out[label], out["numpy"]):
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())

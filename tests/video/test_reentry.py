@@ -118,7 +118,8 @@ def test_reacquisition_finds_the_subject_turned_round_elsewhere():
     empty = [np.zeros_like(m) for m in mask_a]
     options = dict(depth_prior=0.01, upright=0.1, up=(0.0, 1.0, 0.1), max_iterations=7)
     tracker = Tracker(robot, cams, q0=qa, **options)
-    axis = tracker._up_root.copy()
+    (upright,) = [p for p in tracker.ecm.priors if hasattr(p, "axis")]
+    axis = upright.axis.copy()
     watch = Reacquisition(robot, cams, qa)
     notes = []
     for masks in (mask_a, empty, mask_b):
@@ -126,8 +127,10 @@ def test_reacquisition_finds_the_subject_turned_round_elsewhere():
         tracker, r, note = watch.update(tracker, r, masks, source="test")
         notes.append(note)
     # the user's options and the subject's upright axis (found at qa) go on after the search
-    assert (tracker.depth_prior, tracker.upright, tracker.max_iterations) == (0.01, 0.1, 7)
-    np.testing.assert_array_equal(tracker._up_root, axis)
+    opts = tracker.options
+    assert (opts.priors.depth_prior, opts.priors.upright, opts.iteration.max_iterations) == (0.01, 0.1, 7)
+    (upright,) = [p for p in tracker.ecm.priors if hasattr(p, "axis")]
+    np.testing.assert_array_equal(upright.axis, axis)
     assert notes[:2] == [None, None]
     assert "reinitialized" in r.flags and "pose found again" in notes[2]
     assert _errors(robot, r.q[None], qb[None])["mean_centre_error_pct"] < 2.0

@@ -228,8 +228,9 @@ def test_no_shadows_reaches_the_segmentation(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["shadow_detection"] is False
-    assert meta["size_calibration"] and meta["size_every"] == 5  # --init POSE: measured, then refined
-    assert meta["limb_search"] and meta["limb_search_drop"] == 0.03  # segmented masks: a noisy fit
+    opts = meta["options"]
+    assert opts["sizes"]["calibrate_sizes"] and opts["sizes"]["size_every"] == 5  # --init POSE: measured, then refined
+    assert opts["limbs"]["limb_search"] and opts["limbs"]["limb_search_drop"] == 0.03  # segmented masks: a noisy fit
     masks = read_masks(out / "masks" / "cam0", len(frames))
     assert min((m & t).sum() / t.sum() for m, t in zip(masks, light)) >= 0.98
 

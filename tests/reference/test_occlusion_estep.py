@@ -1,18 +1,17 @@
-"""The E-step: soft assignment of foreground pixels with occlusion."""
+"""The thesis's occlusion E-step (reference): soft assignment of foreground pixels with occlusion."""
 
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from ecm._util import random_body_in_view, random_camera
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.density import projected_density
-from kms2pin.ecm.estep import _runs, _transmittance, e_step
 from kms2pin.ecm.raycast import render_mask
 from kms2pin.errors import InputDataError
-
-from ._util import random_body_in_view, random_camera
+from kms2pin.reference.occlusion import e_step, runs, transmittance
 
 
 def _at(pose_xyz, inner, k=1.3, R=None):
@@ -95,8 +94,8 @@ def test_a_single_body_gets_its_density_over_density_plus_outlier_at_each_pixel(
 def test_transmittance_is_the_product_of_one_minus_density_of_the_bodies_in_front():
     group = np.array([0, 0, 0, 4, 7, 7])
     factor = np.array([0.5, 0.0, 0.25, 0.3, 0.8, 0.9])
-    run, first = _runs(group)
-    np.testing.assert_allclose(_transmittance(run, first, factor), [1.0, 0.5, 0.0, 1.0, 1.0, 0.8])
+    run, first = runs(group)
+    np.testing.assert_allclose(transmittance(run, first, factor), [1.0, 0.5, 0.0, 1.0, 1.0, 0.8])
 
 
 def test_an_empty_mask_assigns_nothing():

@@ -1,0 +1,78 @@
+"""Prediction of the next frame's pose and the test of a frame's convergence.
+
+Joint motion is measured in Pinocchio's tangent space (``pin.difference``), so a
+quaternion joint is compared by its rotation, never by its components.  A free root's
+translation is put on the angles' scale: 1 % of the model height counts as 1°.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from ..robot import Robot
+from .camera import Camera
+
+__all__ = ["Motion", "image_motion", "outline_pixels", "outline_points"]
+
+
+class Motion:
+    """Joint motion between configurations of ``robot``, in radians (the root's
+    translation scaled as in the module docstring)."""
+
+    def __init__(self, robot: Robot, max_prediction_deg: float):
+        self.robot = robot
+        self.root_dofs = 3 if robot.root == "free" else 0
+        self.max_prediction = np.radians(float(max_prediction_deg))
+
+    def change(self, q0: np.ndarray, q1: np.ndarray) -> float:
+        """The largest joint change from ``q0`` to ``q1`` (rad)."""
+        dq = np.abs(pin.difference(self.robot.model, q0, q1))
+        if self.root_dofs:
+            dq[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
+        return float(dq.max()) if len(dq) else 0.0
+
+    def velocity(self, prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
+        """The motion from ``prev`` to ``cur`` (a tangent vector), each joint capped at
+        ``max_prediction_deg`` and the root's translation at that many hundredths of the
+        model height: a joint the images hardly fix can start to spin, and an uncapped
+        prediction would carry the spin on from frame to frame."""
+        v = pin.difference(self.robot.model, prev, cur)
+        cap = np.full(len(v), self.max_prediction)
+        if self.root_dofs:
+            cap[:3] = np.degrees(self.max_prediction) * 0.01 * self.robot.height
+        return np.clip(v, -cap, cap)
+
+    def predict(self, cur: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
+        """``cur`` moved on by the capped motion from ``prev`` (constant velocity), clipped
+        into the joint limits; ``cur`` itself without a ``prev``."""
+        if prev is None:
+            return cur
+        return self.robot.clamp(pin.integrate(self.robot.model, cur, self.velocity(prev, cur)))
+
+
+def outline_points(Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    """World points (n_bodies * 7, 3) that outline ellipsoids (rotations ``Rs``, centres
+    ``ts``, semi-axes ``inner``): each centre and the two ends of each axis."""
+    ends = Rs * inner[:, None, :]  # (n, 3, 3): column k = axis k's half length
+    pts = np.concatenate([ts[:, None], ts[:, None] + ends.transpose(0, 2, 1), ts[:, None] - ends.transpose(0, 2, 1)], 1)
+    return pts.reshape(-1, 3)
+
+
+def outline_pixels(points: np.ndarray, cameras: Sequence[Camera]) -> list[np.ndarray]:
+    """:func:`outline_points` projected into every camera (NaN behind it)."""
+    return [cam.project(points) for cam in cameras]
+
+
+def image_motion(a: list[np.ndarray], b: list[np.ndarray]) -> float:
+    """The largest image displacement (pixels, over the cameras) between two sets of
+    :func:`outline_pixels`; points behind a camera are left out."""
+    moved = 0.0
+    for pa, pb in zip(a, b):
+        d = np.linalg.norm(pa - pb, axis=1)
+        d = d[np.isfinite(d)]
+        if len(d):
+            moved = max(moved, float(d.max()))
+    return moved

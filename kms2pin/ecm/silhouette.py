@@ -1,0 +1,72 @@
+"""The silhouette fit: how well a pose's inner ellipsoids cover the masks.
+
+One measure serves the tracker (:attr:`FrameResult.fit`, the running fit, the
+hypotheses and the limb search), the automatic initialization and re-acquisition:
+the intersection over union of the model's silhouette (the pixels whose ray passes
+through some inner ellipsoid, at the pixel centre) with the masks, pooled over the
+cameras.  Two empty sets agree: an empty union is a fit of 1.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from ..robot import Robot
+from .camera import Camera
+from .mstep import body_images, closest_approach, pose_arrays
+from .projection import body_bbox
+
+__all__ = ["PoseCache", "model_silhouette", "silhouette_iou", "visible_bodies"]
+
+
+class PoseCache:
+    """The body poses at a configuration and their :func:`pose_arrays`, kept for the
+    last configuration asked for: an iteration's outline test, the next iteration's
+    E-step and the frame's fit all want the same ones."""
+
+    def __init__(self, robot: Robot):
+        self.robot = robot
+        self._last: tuple | None = None
+
+    def __call__(self, q: np.ndarray) -> tuple[list[pin.SE3], np.ndarray, np.ndarray]:
+        """(poses, rotations (n, 3, 3), centres (n, 3)) of the bodies at ``q`` (world)."""
+        key = np.asarray(q, dtype=float).tobytes()
+        if self._last is None or self._last[0] != key:
+            poses = self.robot.body_poses(q)
+            self._last = (key, poses, *pose_arrays(poses))
+        return self._last[1:]
+
+
+def model_silhouette(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray,
+                     arrays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(H, W) bool: the pixels of ``camera`` whose centre's ray meets an inner ellipsoid
+    (bodies at ``poses``, semi-axes ``inner`` (n, 3)); ``arrays``: their :func:`pose_arrays`."""
+    model = np.zeros(camera.shape, dtype=bool)
+    images = body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays)
+    for P, li, img in zip(poses, inner, images):
+        if img is None:
+            continue
+        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
+        model[img.slices] |= (a2 <= 1.0).reshape(img.shape)
+    return model
+
+
+def silhouette_iou(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequence[Camera],
+                   masks: Sequence[np.ndarray], arrays: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """The intersection over union of the bodies' silhouettes with ``masks`` (bool, one
+    per camera), pooled over the cameras (1 for an empty union)."""
+    arrays = pose_arrays(poses) if arrays is None else arrays
+    inter = union = 0
+    for cam, mask in zip(cameras, masks):
+        model = model_silhouette(cam, poses, inner, arrays)
+        inter += int(np.count_nonzero(model & mask))
+        union += int(np.count_nonzero(model | mask))
+    return inter / union if union else 1.0
+
+
+def visible_bodies(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequence[Camera]) -> list[int]:
+    """Indices of the bodies whose inner silhouette falls in at least one camera."""
+    return [i for i, P in enumerate(poses) if any(body_bbox(c, P, inner[i], 0) is not None for c in cameras)]
