@@ -179,9 +179,7 @@ class Tracker:
         flags = tuple(f"empty mask in camera {c}" for c, e in enumerate(empty) if e)
         views = Views.of(self.cameras, masks).seeing()
         if opts.sizes.calibrate_sizes and not self.sizes.calibrated:
-            from .masks import median_clean  # TEMPORARY: the old double cleaning, for the bitwise check
-            cal = Views(views.cameras, tuple(median_clean(m) for m in views.masks)) if opts.silhouette.clean else views
-            self._calibrate(cal, self.q)
+            self._calibrate(views, self.q)
         q = self.q.copy()
         if opts.iteration.prediction == "constant_velocity":
             q = self.ecm.motion.predict(q, state.prev)

@@ -7,6 +7,7 @@ import pinocchio as pin
 import pytest
 
 from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.masks import median_clean
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -118,3 +119,21 @@ def test_scales_are_kept_and_checked():
 
 
 # ----------------------------------------------------------------------------- mirror hypothesis
+
+
+def test_the_first_frame_measures_the_sizes_on_the_masks_it_tracks():
+    """With clean=True the masks are median-cleaned once: the sizes a first step measures
+    are those calibrate() measures on the same noisy masks (the step used to clean its
+    masks a second time for the measurement)."""
+    from kms2pin.ecm.synth import synthesize
+
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    rng = np.random.default_rng(4)
+    (_, masks), = synthesize(robot, robot.q_rest[None], cams, noise=0.05, size_mismatch=0.1, rng=rng)
+    stepped = Tracker(robot, cams, clean=True, max_iterations=3, size_every=0)  # the calibration alone
+    stepped.step(masks)
+    measured = Tracker(robot, cams, clean=True).calibrate(masks)
+    twice = Tracker(robot, cams, clean=False).calibrate([median_clean(median_clean(m)) for m in masks])
+    np.testing.assert_array_equal(stepped.scales, measured)
+    assert np.abs(twice - measured).max() > 1e-6  # cleaning twice measures something else
