@@ -11,7 +11,7 @@ silhouettes (thesis §2.1.2 assumes a known starting pose; this supplies one):
    passes);
 2. **coarse search** over the root rotation about the model's centre: yaw about
    world +y in ``yaw_steps`` steps and a few small pitches; each candidate is
-   scored by the IoU of its rendered silhouettes with the masks over all
+   scored by the silhouette fit (:func:`~kms2pin.ecm.silhouette.silhouette_iou`) over all
    cameras (rendered at reduced resolution);
 3. **refinement** - the best few candidates are each given ``refine_steps`` ECM
    iterations-worth of :class:`~kms2pin.ecm.tracker.Tracker` steps on the same
@@ -31,7 +31,7 @@ import pinocchio as pin
 from ..errors import InputDataError
 from ..robot import Robot
 from .camera import Camera
-from .raycast import render_mask
+from .silhouette import model_silhouette, silhouette_iou
 from .tracker import Tracker
 
 
@@ -80,8 +80,8 @@ def _extent(mask: np.ndarray) -> tuple[np.ndarray, float]:
     return np.array([u.mean(), v.mean()]), float(v.max() - v.min() + 1)
 
 
-def _bodies(robot: Robot, q: np.ndarray):
-    return [(P, robot.inner(b)) for P, b in zip(robot.body_poses(q), robot.bodies)]
+def _inner(robot: Robot) -> np.ndarray:
+    return np.array([robot.inner(b) for b in robot.bodies], dtype=float).reshape(-1, 3)
 
 
 def model_centre(robot: Robot, q: np.ndarray) -> np.ndarray:
@@ -95,16 +95,6 @@ def _move_root(q: np.ndarray, R: np.ndarray, about: np.ndarray, shift: np.ndarra
     out = q.copy()
     out[:7] = pin.SE3ToXYZQUAT(pin.SE3(R @ T.rotation, about + R @ (T.translation - about) + shift))
     return out
-
-
-def _iou(robot: Robot, q: np.ndarray, cams: Sequence[Camera], masks: Sequence[np.ndarray]) -> float:
-    bodies = _bodies(robot, q)
-    inter = union = 0
-    for cam, m in zip(cams, masks):
-        r = render_mask(cam, bodies)
-        inter += int(np.count_nonzero(r & m))
-        union += int(np.count_nonzero(r | m))
-    return inter / union if union else 0.0
 
 
 def place(robot: Robot, q: np.ndarray, camera: Camera, mask: np.ndarray, passes: int = 4) -> np.ndarray:
@@ -122,7 +112,7 @@ def place(robot: Robot, q: np.ndarray, camera: Camera, mask: np.ndarray, passes:
         d = d[0] / float(d[0] @ R_wc[:, 2])  # unit depth along the ray
         q = _move_root(q, np.eye(3), c, origin + z * d - c)
         c = origin + z * d
-        r = render_mask(camera, _bodies(robot, q))
+        r = model_silhouette(camera, robot.body_poses(q), _inner(robot))
         if not r.any():
             break
         rc, rh = _extent(r)
@@ -152,6 +142,7 @@ def coarse_search(
     cams = [scaled_camera(c, render_scale) for c in cameras]
     small = [_shrink(m, c) for m, c in zip(masks, cams)]
     centre = model_centre(robot, q)
+    inner = _inner(robot)
     T = pin.XYZQUATToSE3(q[:7])
     # pitch about the model's own left-right axis (its x axis at rest), turned with the yaw
     side = T.rotation[:, 0]
@@ -164,7 +155,7 @@ def coarse_search(
         for p in pitches_deg:
             R = pin.exp3(Ry @ side * np.radians(p)) @ Ry
             qc = _move_root(q, R, centre, np.zeros(3))
-            out.append((_iou(robot, qc, cams, small), float(np.degrees(yaw)), float(p), qc))
+            out.append((silhouette_iou(robot.body_poses(qc), inner, cams, small), float(np.degrees(yaw)), float(p), qc))
     out.sort(key=lambda t: -t[0])
     return out
 

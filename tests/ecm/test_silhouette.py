@@ -1,0 +1,52 @@
+"""The silhouette fit: one IoU for the tracker, the initialization and re-acquisition."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.initialization import coarse_search, scaled_camera
+from kms2pin.ecm.raycast import render_mask
+from kms2pin.ecm.silhouette import model_silhouette, silhouette_iou
+from kms2pin.ecm.synth import render
+from kms2pin.ecm.tracker import Tracker
+
+from ._tracking import _cams, _robot
+
+
+def test_the_model_silhouette_is_the_ray_cast_one():
+    """Pixels whose centre ray meets an inner ellipsoid: the same pixels as exact ray
+    casting (an independent implementation) at random poses, two cameras."""
+    robot = _robot("fullbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        poses = robot.body_poses(robot.random_configuration(rng, 40))
+        for cam in _cams(robot):
+            expected = render_mask(cam, [(P, L) for P, L in zip(poses, inner)])
+            assert expected.sum() > 500
+            np.testing.assert_array_equal(model_silhouette(cam, poses, inner), expected)
+
+
+def test_an_empty_union_fits_and_a_miss_does_not():
+    robot = _robot("lowerbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    behind = Camera.look_at(position=robot.q_rest[:3] + [0, 0, 8], target=robot.q_rest[:3] + [0, 0, 16])
+    poses = robot.body_poses(robot.q_rest)
+    empty = np.zeros(behind.shape, dtype=bool)
+    assert silhouette_iou(poses, inner, [behind], [empty]) == 1.0  # nothing seen, nothing there
+    full = np.ones(behind.shape, dtype=bool)
+    assert silhouette_iou(poses, inner, [behind], [full]) == 0.0
+
+
+def test_the_initialization_scores_candidates_with_the_trackers_fit():
+    """The coarse search's score of each candidate is the tracker's fit of it (spec sizes)
+    on the same scaled cameras and masks."""
+    robot = _robot("fullbody")
+    cams = [scaled_camera(c, 2) for c in _cams(robot)]
+    masks = render(robot, robot.q_rest, cams)
+    tracker = Tracker(robot, cams, calibrate_sizes=False)
+    cands = coarse_search(robot, robot.q_rest, cams, masks, yaw_steps=4, pitches_deg=(0.0,), render_scale=1)
+    for score, _, _, q in cands:
+        assert score == tracker.fit(q, masks)
+    assert cands[0][0] > 0.97 > cands[-1][0]
