@@ -11,7 +11,7 @@ inner silhouette, :mod:`kms2pin.ecm.density`) and ``δ_i`` about ``delta_px``
 pixels in ``a`` units: a logistic edge ``delta_px`` wide centred on the true
 outline.  The image of all bodies is their union ``M = 1 - Π_j (1 - s_j)``.
 
-E-step (:func:`explained_by_others`).  For body i the pixels are soft-labelled
+E-step (:class:`kms2pin.ecm.estep.UnionEStep`).  For body i the pixels are soft-labelled
 by what the *other* bodies already explain: ``o_i = 1 - Π_{j≠i} (1 - s_j)``.
 Occlusion needs no depth order here: a silhouette is the union of the bodies'
 images whichever is in front.
@@ -36,7 +36,7 @@ Levenberg-Marquardt style, relative to the data's own curvature, so
 directions the images do not determine (a mostly occluded body; in one view,
 turns that leave an outline unchanged) stay where they are: the body's target
 equals its primary pose there and its spring exerts no force in them.  The
-Gauss-Newton matrix ``H = JᵀJ`` is returned: the tracker turns it into
+Gauss-Newton matrix ``H = JᵀJ`` is returned: the springs (:mod:`kms2pin.ecm.springs`) turn it into
 per-coordinate stiffness for the static update (thesis: "k may be different
 for every coordinate of every body").
 

@@ -2,10 +2,27 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
+from kms2pin.cli import build_parser
+from kms2pin.commands._tracking import tracker_options
 from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.motions import make_motion
+from kms2pin.ecm.options import (
+    GROUPS,
+    PEOPLE_ONE_CAMERA,
+    SEGMENTED_MASKS,
+    IterationOptions,
+    LimbSearchOptions,
+    PriorOptions,
+    TrackerOptions,
+    cli_fields,
+)
+from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.errors import InputDataError, OptionError
 
@@ -46,3 +63,62 @@ def test_a_misspelt_option_suggests_the_right_one_and_a_nan_start_is_refused():
         Tracker(robot, Camera.default(), uprigth=0.1)
     with pytest.raises(InputDataError, match="initial pose is not finite"):
         Tracker(robot, Camera.default(), q0=np.full(robot.nq, np.nan))
+
+
+def test_options_and_keywords_give_the_same_track():
+    """Tracker(robot, cams, options=TrackerOptions(...)) and the keyword spelling give the
+    same options and the same track, frame for frame; a preset works both ways too."""
+    robot = _robot("lowerbody")
+    cams = [Camera.default()]
+    motion = make_motion(robot, "walk", 8)
+    frames = [render(robot, q, cams) for q in motion]
+    opts = TrackerOptions(priors=PriorOptions(upright=0.1, rest_prior=0.01),
+                          iteration=IterationOptions(max_iterations=6))
+    a = Tracker(robot, cams, opts, q0=motion[0])
+    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, max_iterations=6)
+    assert a.options == b.options
+    for m in frames:
+        ra, rb = a.step(m), b.step(m)
+        np.testing.assert_array_equal(ra.q, rb.q)
+        assert (ra.fit, ra.flags, ra.iterations) == (rb.fit, rb.flags, rb.iterations)
+    c = Tracker(robot, cams, options=PEOPLE_ONE_CAMERA, q0=motion[0], max_iterations=6)
+    d = Tracker(robot, cams, q0=motion[0], max_iterations=6, **PEOPLE_ONE_CAMERA)
+    assert c.options == d.options == a.options
+    assert Tracker(robot, cams, SEGMENTED_MASKS).options.limbs.limb_search_drop == 0.03
+
+
+def test_overrides_go_over_the_options_and_each_option_is_in_one_group():
+    opts = TrackerOptions().replace(upright=0.2, size_every=0, limbs=LimbSearchOptions(limb_margin=0.01))
+    assert (opts.priors.upright, opts.sizes.size_every, opts.limbs.limb_margin) == (0.2, 0, 0.01)
+    flat = opts.flat()
+    names = [f.name for g in GROUPS.values() for f in dataclasses.fields(g)]
+    assert len(names) == len(set(names)) == len(flat)  # one flat name space
+    # every option has help, and asdict is what meta.json records (JSON-ready)
+    for cls in GROUPS.values():
+        for f in dataclasses.fields(cls):
+            assert f.metadata["help"] and f.name in cls.__doc__
+    assert json.loads(json.dumps(dataclasses.asdict(opts)))["priors"]["up"] == [0.0, 1.0, 0.0]
+    with pytest.raises(OptionError, match="upright must be >= 0.0"):
+        opts.replace(upright=-1.0)
+    with pytest.raises(OptionError, match="mirror_hypothesis must be True or False or None"):
+        TrackerOptions().replace(mirror_hypothesis="yes")
+    with pytest.raises(OptionError, match="options must be a TrackerOptions"):
+        Tracker(_robot("lowerbody"), Camera.default(), {"upright": 0.1})
+
+
+def test_the_track_command_has_a_flag_for_each_option_that_declares_one(capsys):
+    """kms2pin track's flags come from the option fields: each declared flag is there
+    with the option's help, and parses into the option (0 stands for None where
+    declared; switches not given stay automatic)."""
+    parser = build_parser()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["track", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    for f in cli_fields():
+        assert f.metadata["cli"].flag in shown and " ".join(f.metadata["help"].split()) in shown
+    args = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--tol-px", "0", "--upright", "0.1",
+                              "--no-mirror-hypothesis", "--up", "0", "0", "1", "--size-every", "3"])
+    opts = tracker_options(args)
+    assert opts.iteration.tol_px is None and opts.priors.upright == 0.1 and opts.sizes.size_every == 3
+    assert opts.hypotheses.mirror_hypothesis is False and opts.priors.up == (0.0, 0.0, 1.0)
+    assert opts.limbs.limb_search is None and opts.hypotheses.swap_hypothesis is None  # not given: automatic
