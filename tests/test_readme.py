@@ -20,19 +20,30 @@ def test_the_readme_language_example_compiles():
     assert robot.nq == 2
 
 
-def test_the_readme_python_example_runs(tmp_path, monkeypatch, capsys):
-    block = re.findall(r"```python\n(.*?)```", README, re.S)[0]
-    script = tmp_path / "readme_example.py"
+def _run_block(k: int, tmp_path: Path, monkeypatch) -> None:
+    block = re.findall(r"```python\n(.*?)```", README, re.S)[k]
+    script = tmp_path / f"readme_example_{k}.py"
     script.write_text(block)
     monkeypatch.chdir(ROOT)
     runpy.run_path(str(script), run_name="__main__")
+
+
+def test_the_readme_pose_example_runs(tmp_path, monkeypatch, capsys):
+    _run_block(0, tmp_path, monkeypatch)
+    robot = kms2pin.load(ROOT / "specs" / "fullbody.kms")
+    expected = robot.body_pose(robot.q_rest, "leftShin").translation.round(3)
+    assert capsys.readouterr().out.strip() == f"{list(robot.joint_names[:3])} {expected}"
+
+
+def test_the_readme_static_update_example_runs(tmp_path, monkeypatch, capsys):
+    _run_block(1, tmp_path, monkeypatch)
     assert capsys.readouterr().out.startswith("True ")
 
 
 def test_the_readme_tracking_example_runs_and_tracks(tmp_path, monkeypatch, capsys):
     """The tracking example, run in a scratch folder: it writes its CSV there and the
     figures it prints are what the evaluation of that CSV against the truth gives."""
-    block = re.findall(r"```python\n(.*?)```", README, re.S)[1]
+    block = re.findall(r"```python\n(.*?)```", README, re.S)[2]
     (tmp_path / "specs").symlink_to(ROOT / "specs")
     script = tmp_path / "readme_tracking.py"
     script.write_text(block)
@@ -47,6 +58,13 @@ def test_the_readme_tracking_example_runs_and_tracks(tmp_path, monkeypatch, caps
     assert float(pct) == round(report["mean_centre_error_pct"], 2)
     assert float(deg) == round(report["revolute_rmse_deg"], 1)
     assert float(pct) < 2.0 and float(deg) < 5.0  # the issue's two-camera targets
+
+
+def test_the_readme_is_short_and_its_links_resolve():
+    assert len(README) <= 10_000
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README):
+        if not target.startswith("http"):
+            assert (ROOT / target).exists(), target
 
 
 def test_the_readme_quick_start_is_what_ci_runs():

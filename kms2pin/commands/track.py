@@ -211,7 +211,7 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
               file=sys.stderr)
     if n_cameras == 1 and robot.root == "free" and not args.upright and not args.rest_prior:
         # with joint limits the upright prior alone tracked the walk benchmark best; without
-        # them it lost seeds that the rest prior keeps (docs/tracking.md, one camera)
+        # them it lost seeds that the rest prior keeps (docs/design/tracking-history.md)
         priors = "--upright 0.1 holds" if robot.has_limits else "--upright 0.1 --rest-prior 0.01 hold"
         print(f"note: one camera: for a person walking or standing, {priors} what one view does not fix "
               "(not for a hand; docs/tracking.md)", file=sys.stderr)

@@ -9,8 +9,8 @@ each, and :meth:`TrackerOptions.replace` takes the flat keyword spelling
 the same fields (``cli`` in a field's metadata, :func:`cli_fields`), and ``meta.json``
 records :func:`dataclasses.asdict` of the options.
 
-Guidance on which options suit which subject, and the measurements behind the
-defaults: docs/tracking.md.
+Which options suit which subject: docs/tracking.md; the measurements behind the
+defaults: docs/design/tracking-history.md.
 """
 
 from __future__ import annotations
@@ -335,10 +335,10 @@ class Preset(Mapping):
 
 
 #: masks from a real segmentation (``track --video`` uses it): the fit is noisy, and the
-#: limb search on a fall of 0.015 fired on many frames (docs/tracking.md, video)
+#: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: a person walking or standing, seen by one camera: the upright and rest priors hold
-#: what one view does not fix (docs/tracking.md, one camera)
+#: what one view does not fix (docs/design/tracking-history.md)
 PEOPLE_ONE_CAMERA = Preset("people, one camera", {"upright": 0.1, "rest_prior": 0.01})
 
 

@@ -13,8 +13,8 @@ Per frame :meth:`Tracker.step`:
    that leads;
 7. flags poor fits, refines the body sizes on good frames, and moves on.
 
-The options are :class:`~kms2pin.ecm.options.TrackerOptions`; guidance and
-measurements: docs/tracking.md.
+The options are :class:`~kms2pin.ecm.options.TrackerOptions`; guidance:
+docs/tracking.md; how it is built: docs/design/tracker.md.
 """
 
 from __future__ import annotations
@@ -203,7 +203,7 @@ class Tracker:
             flags += ("lost: kept the last pose",)
         # a frame fitting at least as well as the running fit, with nothing to report, is
         # evidence on the body sizes (the first frame counts twice: its calibration at the
-        # starting pose, then this refinement at the tracked pose; docs/tracking.md)
+        # starting pose, then this refinement at the tracked pose; docs/design/tracking-history.md)
         every = opts.sizes.size_every
         if self.sizes.calibrated and every > 0 and state.frame % every == 0 and not flags \
                 and fit >= state.running.score:

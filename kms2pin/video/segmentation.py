@@ -1,114 +1,25 @@
 """Figure-ground segmentation by adaptive background subtraction (thesis §2.1.2).
 
-The tracker's input is "a figure-ground segmentation which labels each pixel
-as belonging either to the rigid body system or to the background".  This
-module produces it from a static-camera video with OpenCV's adaptive
-per-pixel background models (``mog2``: Zivkovic's Gaussian mixture, the
-default; ``knn``: Zivkovic's K-nearest-neighbour samples), both with shadow
-detection on by default (shadow pixels, value 127, count as background;
-``detect_shadows=False`` keeps them: a subject whose colours are darker shades
-of the background's, e.g. light grey before a white wall, is otherwise lost).
-A pixel counts as a shadow when it keeps the background's colour at no less than
-``shadow_threshold`` of its brightness (OpenCV's default, 0.5).  A deeper cast
-shadow stays foreground: on ``benchmarks/video.py``'s walk, a shadow at 0.4 of
-the floor's brightness made 22-27 % of the masks false and lost the one-camera
-track (41-49 %), and ``shadow_threshold=0.3`` takes it out (1.5-5.1 % false,
-the same as a shadow at 0.6 with the default) with the test videos' masks the
-same.  It also takes subjects in darker shades of the background's colours (dark
-grey trousers on a light grey floor) for shadows, hence the default.
+The tracker's input is "a figure-ground segmentation which labels each pixel as
+belonging either to the rigid body system or to the background".  This module makes
+it from a static-camera video with OpenCV's adaptive per-pixel background models
+(``mog2``, the default, or ``knn``), per frame:
 
-Pipeline, per frame:
+1. **learning** from ``learn_frames`` frames (spread over the video, or the first
+   ones), cleaned of the moving subject with their per-pixel temporal mode
+   (:func:`temporal_mode`);
+2. **gain**: a frame whose per-channel gain against the background is more than
+   ``GAIN_DEADBAND`` from 1 is divided by it (:func:`channel_gains`: automatic
+   exposure, white balance);
+3. **adaptation** of the models at ``learning_rate``;
+4. **edge refinement** on luminance (lossy codecs bleed colour a pixel into the
+   background);
+5. **clean-up**: shadows dropped (a pixel keeping at least ``shadow_threshold`` of
+   the background's brightness), opening, closing, small blobs removed, holes filled;
+6. **a check** for regions foreground in 90 % of the frames
+   (:class:`StaticForegroundWarning`).
 
-1. **Learning** from ``learn_frames`` frames (default 30), either spread
-   evenly over the whole sequence (``learn_from="spread"``, the default: the
-   input is read twice) or the first ones (``"start"``: one pass, for streams).
-   Their per-pixel temporal mode (:func:`temporal_mode`: the mean of the largest
-   group of learning frames that agree within ``mode_tolerance`` grey levels in
-   every colour channel) is a first guess of the empty scene, and pixels that differ
-   from it by more than ``bootstrap_diff`` grey levels (the moving subject,
-   dilated by 3 pixels) are replaced by it.  These cleaned frames train the
-   model with a high learning rate (``1/(k+1)`` for the k-th, i.e. a running
-   average, two passes), so the model learns the real noise and flicker of the
-   background but not the subject.  The mode, not the median: a subject that
-   walks slowly across the image covers the pixels in the middle of its path in
-   more than half of the frames, and the median there is the subject's colours.
-   The model then learnt the subject there, and the empty background showed as
-   a false blob in every frame (a ghost, 11-15 % of the mask's pixels on the
-   full body's diagonal walk of ``benchmarks/video.py``; 1.5-1.9 % with the
-   mode).  The passing bodies' colours differ from frame to frame, while the
-   background's stay the same, so the mode finds the background wherever it
-   shows in more learning frames than any one colour of the subject (a subject
-   that stands still is still learnt as background).
-   With ``compensate_gain`` (the default) a learning frame whose per-channel gain
-   against the middle one is more than 10 % off is first divided by it.
-2. **Masks for every frame**: with ``"spread"`` every frame is then segmented
-   in order, from the first; with ``"start"`` the learning frames are
-   segmented again, with the trained model frozen (learning rate 0), before the
-   rest - so every frame, including the first, gets a proper mask either way;
-   nothing is flagged.
-   **Gain**: with ``compensate_gain`` each frame's per-channel gain against
-   the learnt background is measured: the median ratio over every fourth pixel
-   of every fourth row (every s-th of every s-th above 640x480, about 20000
-   pixels: s = 10 at 1920x1080), leaving out the last frame's foreground
-   (:func:`channel_gains`).  When a gain is more than ``GAIN_DEADBAND`` (10 %)
-   from 1, the frame is divided by its gains first.  A camera's automatic
-   exposure or white balance, or a dimmer light, scales the whole image; the
-   per-pixel models then saw everything as foreground.  On
-   ``benchmarks/video.py``'s clips 0-2 (both cameras, raw frames), false pixels
-   in % of the true masks' area, without -> with: exposure falling to 0.7 over
-   the 60 frames 9-41 -> 0.9-1.3; rising to 1.3 9-40 -> 0.9-1.4; a step to 1.25
-   at frame 30 370-540 -> 0.9-1.3; white balance drifting (blue +20 %, red
-   -20 %) 1.4-7.5 -> 0.9-1.3 (measured dividing every frame; with the deadband
-   0.9-2.6, worst frames up to 34 % where the falling exposure crosses it).  Smaller changes are left to the
-   models, which learn them (the clips' +-5 % flicker) as part of each pixel's
-   variance: dividing them out too halved the missed pixels on raw frames, but
-   on MJPG video the tighter models took the codec's noise around the subject
-   for foreground (false 1.8-2.2 % -> 2.5-2.9 %), and the one-camera
-   ``track --video`` of clips 0-6 got worse on six of seven (1.75-2.21 %
-   against 1.25-2.06 %).  With the deadband clips 0-2 give the same masks as
-   without compensation (and the same tracks to the digit).
-3. **Adaptation**: the frames after the learning frames (every frame with
-   ``"spread"``) also update the model, at ``learning_rate``
-   (default ``1/history``, history 500 frames: a subject that stands still
-   for about ``0.7 * history`` frames fades into the background).
-4. **Edge refinement** (``refine_edges``, on by default): lossy codecs (MPEG-4,
-   H.264, MJPEG) store colour at half the resolution (4:2:0 chroma), so the
-   subject's colour bleeds about a pixel into the background around it and
-   the colour-distance models above mark that ring as foreground; luminance is
-   kept at full resolution.  A luminance background (the mean of the cleaned
-   learning frames, then updated on background pixels at the learning rate)
-   decides the rim of each raw mask (foreground pixels with a background
-   4-neighbour): a rim pixel stays foreground if its luminance is closer to
-   the mean luminance of the foreground inside it (5x5 window) than to the
-   background's (times the frame's global gain: the ratio of the mean
-   luminances over background pixels, which follows lighting flicker), or if those two
-   differ by less than ``edge_contrast`` grey levels (no luminance evidence:
-   the colour test stands).
-5. **Clean-up** of every mask: shadows dropped; morphological opening
-   (elliptical ``open_size`` kernel, default 3x3) removes speckle, closing
-   (``close_size``, default 3x3) bridges small gaps; connected components
-   smaller than ``min_blob_area`` pixels are removed (default 0.1 % of the
-   image, 77 px at 320x240); holes inside the silhouette (background regions
-   not connected to the image border) are filled (``fill_holes``).  A 5x5
-   closing (the earlier default) also fills the gaps between an arm and the
-   trunk: tracking the full body's segmented diagonal walk (two cameras, started
-   from the true pose) gave 3.98, 2.15, 2.23 and 3.26 % mean body-centre error on
-   four clips, against 1.72, 1.84, 2.09 and 1.28 % with 3x3; the lower body's clip
-   1.10 against 1.11 %.  On the test videos the median IoU with the true
-   silhouettes rose by 0.002-0.010 in ten cases of eleven (learning from the
-   start with KNN: 0.814 -> 0.810).
-
-6. **A check**: pixels that are foreground in at least 90 % of the frames
-   (``STATIC_SHARE``; clips of 20 frames or more), in a blob of at least
-   ``min_blob_area``, give a :class:`StaticForegroundWarning`.  The learning
-   frames show the background there in none or few of their frames: the
-   subject stood there while they were taken (with ``"start"``), the camera
-   moved, or the scene changed; or the subject stands there in every frame,
-   after learning from an empty scene, and the masks are right.
-
-With ``learn_frames=0`` the model starts empty and learns online (OpenCV's
-own schedule) - early masks are then poor, and no gain is compensated (it is
-measured against the learnt background).
+Each step's reasons and measurements: docs/design/segmentation.md.
 """
 
 from __future__ import annotations
