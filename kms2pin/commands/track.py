@@ -257,9 +257,10 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
             for k in iterator:
                 frame, masks, names = frames.numbers[k], frames.load(k), frames.names[k]
                 r = tracker.step(masks, source=f"{names}: frame {frame}")
-                if "empty mask" in r.flags:
-                    kept = "the previous frame's pose kept" if k else "the initial pose kept"
-                    print(f"note: frame {frame}: empty mask ({names}); {kept}", file=sys.stderr)
+                for what in ("empty mask", "mask nearly full"):
+                    if what in r.flags:
+                        kept = "the previous frame's pose kept" if k else "the initial pose kept"
+                        print(f"note: frame {frame}: {what} ({names}); {kept}", file=sys.stderr)
                 if reacquire is not None:
                     tracker, r, note = reacquire.update(tracker, r, masks, source=f"{names}: frame {frame}")
                     if note:

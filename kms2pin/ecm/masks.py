@@ -17,7 +17,22 @@ import numpy as np
 from ..errors import InputDataError
 from .camera import Camera
 
-__all__ = ["Views", "bin_mask", "check_masks", "median_clean"]
+__all__ = ["NEARLY_FULL", "Views", "bin_mask", "check_masks", "median_clean", "mask_problem"]
+
+#: a mask with more than this share of its pixels foreground says nothing of the pose (a
+#: light switched on, a lens cap taken off, a background model that failed)
+NEARLY_FULL = 0.9
+
+
+def mask_problem(mask: np.ndarray) -> str | None:
+    """Why a mask cannot drive the pose: ``"empty mask"``, ``"mask nearly full"`` (more
+    than :data:`NEARLY_FULL` of it foreground), or None."""
+    n = int(np.count_nonzero(mask))
+    if n == 0:
+        return "empty mask"
+    if n > NEARLY_FULL * mask.size:
+        return "mask nearly full"
+    return None
 
 
 def median_clean(mask: np.ndarray) -> np.ndarray:
@@ -75,8 +90,8 @@ class Views:
         return len(self.cameras)
 
     def seeing(self) -> Views:
-        """Only the cameras whose mask is not empty."""
-        seen = [m.any() for m in self.masks]
+        """Only the cameras whose mask can drive the pose (:func:`mask_problem`)."""
+        seen = [mask_problem(m) is None for m in self.masks]
         return Views(tuple(c for c, s in zip(self.cameras, seen) if s), tuple(m for m, s in zip(self.masks, seen) if s))
 
     def binned(self, binned_cameras: dict[Camera, Camera]) -> Views | None:

@@ -33,7 +33,7 @@ from .hypotheses import KIND_WORDS, Hypotheses
 from .limbs import left_right_joints, sagittal_mirror
 from .limbsearch import LimbMove, LimbSearch
 from .loop import FrameECM, new_timings
-from .masks import Views, check_masks
+from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
 from .priors import RestPrior, UprightPrior
@@ -164,19 +164,21 @@ class Tracker:
 
         A frame whose masks are all empty keeps the last pose and is flagged
         ``"empty mask"``; a camera whose mask alone is empty is left out of the
-        frame (flag ``"empty mask in camera k"``).
+        frame (flag ``"empty mask in camera k"``).  A mask more than 90 % foreground
+        (:data:`~kms2pin.ecm.masks.NEARLY_FULL`) says nothing of the pose either:
+        ``"mask nearly full"`` (every camera) or ``"mask nearly full in camera k"``.
         """
         opts, state = self.options, self.state
         masks = check_masks(masks, self.cameras, source, opts.silhouette.clean)
         timings = new_timings()
-        empty = [not m.any() for m in masks]
-        if all(empty):
-            res = FrameResult(self.q.copy(), self.robot.maximal_coordinates(self.q), 0, 0.0, False, ("empty mask",),
-                              timings)
+        problems = [mask_problem(m) for m in masks]
+        if all(problems):  # nothing to go on: the pose is kept, with no velocity
+            what = "mask nearly full" if "mask nearly full" in problems else "empty mask"
+            res = FrameResult(self.q.copy(), self.robot.maximal_coordinates(self.q), 0, 0.0, False, (what,), timings)
             state.advance(self.q, keep_velocity=False)
             self.hypotheses.alts.clear()
             return res
-        flags = tuple(f"empty mask in camera {c}" for c, e in enumerate(empty) if e)
+        flags = tuple(f"{p} in camera {c}" for c, p in enumerate(problems) if p)
         views = Views.of(self.cameras, masks).seeing()
         if opts.sizes.calibrate_sizes and not self.sizes.calibrated:
             self._calibrate(views, self.q)
@@ -298,7 +300,7 @@ class Tracker:
 
     def _one_frame(self, q, masks, source: str) -> tuple[Views, np.ndarray, dict] | None:
         """ECM from ``q`` on one frame's masks (no prediction, no hypotheses), or None if
-        every mask is empty."""
+        no mask can drive the pose (:func:`~kms2pin.ecm.masks.mask_problem`)."""
         views = Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean))
         views = views.seeing()
         if not len(views):

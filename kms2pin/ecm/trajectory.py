@@ -29,7 +29,8 @@ class FrameResult:
         fit: intersection over union of the model's inner silhouettes with the masks
             (over all cameras).
         converged: whether the configuration stopped changing within the limit.
-        flags: notes such as ``"empty mask"`` (pose kept from the previous frame),
+        flags: notes such as ``"empty mask"`` or ``"mask nearly full"`` (more than 90 %
+            of every camera's mask foreground: pose kept from the previous frame),
             ``"poor fit (0.31)"`` (fit below the tracker's ``poor_fit``; the next frame
             is predicted without velocity), ``"lost: kept the last pose"`` (the model's
             silhouettes miss the masks entirely), ``"switched to the mirror

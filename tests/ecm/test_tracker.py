@@ -291,3 +291,25 @@ def test_fit_is_the_iou_of_the_model_silhouettes_and_what_a_step_reports():
     assert res.fit == pytest.approx(tr.fit(res.q, masks), abs=1e-12)
     with pytest.raises(ValueError, match="nq"):
         tr.fit(robot.q_rest[:5], masks)
+
+
+def test_a_nearly_full_mask_does_not_drive_the_pose():
+    """All-white masks (a light switched on, a failed background model) once pulled the
+    root past the camera with a fit of 1.0 and no flag: a mask more than 90 % foreground
+    now keeps the pose as an empty one does; with another camera seeing the subject the
+    full camera alone is left out."""
+    robot = _robot("lowerbody")
+    cams = _cams(robot)
+    masks = render(robot, robot.q_rest, cams)
+    white = [np.ones_like(m) for m in masks]
+    tr = Tracker(robot, cams, calibrate_sizes=False)
+    r = tr.step(white)
+    assert r.flags == ("mask nearly full",) and r.fit == 0.0
+    np.testing.assert_array_equal(r.q, robot.q_rest)
+    one = Tracker(robot, cams, calibrate_sizes=False)
+    r = one.step([masks[0], white[1]])
+    assert r.flags == ("mask nearly full in camera 1",)
+    assert centre_error(robot, r.q, robot.q_rest) < 0.5
+    almost = masks[0].copy()
+    almost[: int(0.95 * almost.shape[0])] = True  # 95 % foreground
+    assert Tracker(robot, cams[:1], calibrate_sizes=False).step([almost]).flags == ("mask nearly full",)
