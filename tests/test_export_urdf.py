@@ -179,3 +179,26 @@ def test_a_free_root_is_a_floating_joint_from_world_and_a_virtual_joint_with_its
     spec_robot = kms2pin.load(spec)  # the spec's own root joint at rest places the root link there
     spec_robot.forward(spec_robot.q_rest)
     np.testing.assert_allclose(M.homogeneous, body_frame(spec_robot, export.robot.bodies[0]).homogeneous, atol=1e-13)
+
+
+def test_a_joint_already_called_root_joint_is_refused_with_a_free_root(tmp_path, capsys):
+    """Body 'root' with bound vector 'joint' makes a joint 'root_joint', the free root's name:
+    two joints of one name would be an ill-formed URDF and an ambiguous SRDF rest state."""
+    spec = tmp_path / "rj.kms"
+    spec.write_text("""
+        bvec o { pos(0, 0, 0); orient(1, 0, 0); }
+        rigidBodySystem s {
+            ellipsoidBody a { innerLam(0.1, 0.1, 0.3); outerLam(0.2, 0.2, 0.4);
+                              bvec top { pos(0, 0, 0.3); orient(1, 0, 0); }
+                              bvec tip { pos(0, 0, -0.3); orient(1, 0, 0); } }
+            ellipsoidBody root { innerLam(0.1, 0.1, 0.3); outerLam(0.2, 0.2, 0.4);
+                                 bvec joint { pos(0, 0, 0.3); orient(1, 0, 0); } }
+            constraint revolute(a.tip, root.joint, 10);
+        }
+        constraint revolute(s.a.top, o);
+    """)
+    for fmt in ("urdf", "mjcf"):
+        assert main(["export", str(spec), "-o", str(tmp_path / fmt), "--root", "free", "--format", fmt]) == 1
+        assert "'s' has a joint called 'root_joint' (body 'root')" in capsys.readouterr().err
+        assert not (tmp_path / fmt).exists()
+    assert main(["export", str(spec), "-o", str(tmp_path / "spec")]) == 0

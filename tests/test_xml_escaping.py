@@ -91,6 +91,7 @@ def test_export_writes_well_formed_urdf_srdf_and_mjcf_for_a_hostile_file_name(ho
     assert mujoco.MjModel.from_xml_path(str(out / "lowerBodyBipedal.xml")).nbody == len(robot.bodies) + 1  # and world
 
 
+@pytest.mark.slow
 def test_synth_view_and_track_take_a_hostile_file_name(hostile_spec, tmp_path, capsys):
     masks, out = tmp_path / "masks", tmp_path / "track"
     assert main(["synth", str(hostile_spec), "--frames", "2", "-o", str(masks)]) == 0

@@ -4,7 +4,7 @@ tracker with its synthetic data and evaluation.
 The image geometry (:mod:`~kms2pin.ecm.camera`, :mod:`~kms2pin.ecm.projection`,
 :mod:`~kms2pin.ecm.density`, :mod:`~kms2pin.ecm.estep`, :mod:`~kms2pin.ecm.raycast`)
 is independent of the rest of kms2pin: bodies are ``(world_T_body, semi_axes)`` given
-as ``pin.SE3`` and arrays.  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
+as ``pin.SE3`` and arrays (the ray casting also takes a :class:`Capsule`).  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
 :class:`kms2pin.Robot`.
 """
 
@@ -25,7 +25,7 @@ from kms2pin.ecm.projection import (
     ellipsoid_visibility,
     inside_conic,
 )
-from kms2pin.ecm.raycast import render_labels, render_mask
+from kms2pin.ecm.raycast import Capsule, render_labels, render_mask
 from kms2pin.ecm.synth import synthesize
 from kms2pin.ecm.tracker import SEGMENTED_MASKS, Tracker
 from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
@@ -33,6 +33,7 @@ from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 __all__ = [
     "BBox",
     "Camera",
+    "Capsule",
     "EStepResult",
     "Ellipse",
     "FrameResult",
