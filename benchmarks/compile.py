@@ -1,4 +1,5 @@
-"""Compile-and-load and forward-kinematics timings for the four thesis specs.
+"""Compile-and-load and forward-kinematics timings for the four thesis specs (and the
+time to write the URDF + SRDF and the MJCF text).
 
 Prints median times over repeated runs (the machine is noisy: medians, not means),
 and the ratio to the targets of the compiler issue: full-body model compiled and
@@ -22,6 +23,7 @@ import pinocchio as pin
 
 import kms2pin
 from kms2pin.lang import parse_text
+from kms2pin.mjcf import to_mjcf
 from kms2pin.robot import Robot
 from kms2pin.urdf import to_srdf, to_urdf
 
@@ -48,7 +50,7 @@ def main() -> None:
     except kms2pin.SpecError:
         pass
     print(f"grammar load (first parse in a process): {(time.perf_counter() - t0) * 1e3:.1f} ms")
-    print(f"{'spec':10s} {'bodies':>6s} {'nq':>3s} {'parse ms':>9s} {'urdf ms':>8s} {'pin ms':>7s} "
+    print(f"{'spec':10s} {'bodies':>6s} {'nq':>3s} {'parse ms':>9s} {'urdf ms':>8s} {'mjcf ms':>8s} {'pin ms':>7s} "
           f"{'total ms':>9s} {'FK us':>7s} {'FK+poses us':>12s} {'all J us':>9s}")
     rows = {}
     for name in ("puma600", "lowerbody", "fullbody", "jplhand"):
@@ -57,8 +59,9 @@ def main() -> None:
         system = spec.system()
         t_parse = median_time(lambda: parse_text(text, f"{name}.kms"), args.repeat)
         t_urdf = median_time(lambda: (to_urdf(system), to_srdf(system)), args.repeat)
+        t_mjcf = median_time(lambda: to_mjcf(system), args.repeat)
         t_total = median_time(lambda: kms2pin.load(text), args.repeat)
-        t_pin = median_time(lambda: Robot(spec, system), args.repeat) - t_urdf  # Pinocchio model, frames, SRDF
+        t_pin = median_time(lambda: Robot(spec, system), args.repeat) - t_urdf  # own URDF flavour, Pinocchio model, frames, SRDF
         robot = Robot(spec, system)
         q = robot.random_configuration(np.random.default_rng(0), 90)
         m, d = robot.model, robot.data
@@ -66,7 +69,7 @@ def main() -> None:
         t_poses = median_time(lambda: robot.body_poses(q), args.repeat, 500)
         t_jac = median_time(lambda: pin.computeJointJacobians(m, d, q), args.repeat, 2000)
         rows[name] = (t_total, t_fk)
-        print(f"{name:10s} {len(robot.bodies):6d} {robot.nq:3d} {t_parse * 1e3:9.2f} {t_urdf * 1e3:8.2f} "
+        print(f"{name:10s} {len(robot.bodies):6d} {robot.nq:3d} {t_parse * 1e3:9.2f} {t_urdf * 1e3:8.2f} {t_mjcf * 1e3:8.2f} "
               f"{t_pin * 1e3:7.2f} {t_total * 1e3:9.2f} {t_fk * 1e6:7.2f} {t_poses * 1e6:12.2f} {t_jac * 1e6:9.2f}")
     total, fk = rows["fullbody"]
     print()

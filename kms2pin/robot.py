@@ -21,8 +21,8 @@ import pinocchio as pin
 
 from .errors import RobotError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
-from .model import ModelSpec, System, alignment_matrix, axis_angle_matrix
-from .urdf import to_srdf, to_urdf
+from .model import ModelSpec, System
+from .urdf import centre_offset, root_rest_placement, to_srdf, to_urdf
 
 ROOTS = ("spec", "free")
 
@@ -48,7 +48,12 @@ class Robot:
         model, data: Pinocchio model and data.  Each body has a BODY frame (its link,
             at the joint to its parent) and an OP_FRAME ``"<body>_centre"`` at the
             ellipsoid centre with the body axes.
-        urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
+        urdf, srdf: the exported text (meshes referenced as ``meshes/unit_sphere.obj``).
+            :attr:`model` is built from the other flavour of the same URDF
+            (:mod:`kms2pin.urdf`): the same joints in the same order, but a joint the spec
+            leaves unlimited is revolute (one coordinate) where the exported URDF makes it
+            ``continuous`` (two in Pinocchio's parser: cos, sin), and a free root is the
+            free flyer ``root_joint`` either way.
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
         coordinate_names: one name per entry of ``q``: a free root's
@@ -85,10 +90,11 @@ class Robot:
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
         self.srdf = to_srdf(system, source, free_root=free)
+        own = to_urdf(system, source, free_root=free, for_model=True)
         if free:
-            self.model = pin.buildModelFromXML(self.urdf, pin.JointModelFreeFlyer())
+            self.model = pin.buildModelFromXML(own, pin.JointModelFreeFlyer())
         else:
-            self.model = pin.buildModelFromXML(self.urdf)
+            self.model = pin.buildModelFromXML(own)
         self.bodies = tuple(b.name for b in system.bodies)
         self._index = {n: i for i, n in enumerate(self.bodies)}
         self.frame_ids = tuple(self._add_centre_frame(b) for b in self.bodies)
@@ -121,8 +127,7 @@ class Robot:
     def _add_centre_frame(self, body: str) -> int:
         link = self.model.getFrameId(body, pin.FrameType.BODY)
         frame = self.model.frames[link]
-        centre = -np.asarray(self.system.joint_of(body).child_bvec.pos)
-        placement = frame.placement * pin.SE3(np.eye(3), centre)
+        placement = frame.placement * pin.SE3(np.eye(3), centre_offset(self.system, body))
         return self.model.addFrame(
             pin.Frame(f"{body}_centre", frame.parentJoint, link, placement, pin.FrameType.OP_FRAME)
         )
@@ -141,11 +146,8 @@ class Robot:
 
     def _rest_configuration(self) -> np.ndarray:
         q = np.array(self.model.referenceConfigurations["rest"], dtype=float)
-        if self.root == "free":
-            j = self.system.joints[0]
-            R = axis_angle_matrix(np.asarray(j.parent_bvec.orient), np.radians(j.default_angle))
-            R = R @ alignment_matrix(np.asarray(j.parent_bvec.orient), np.asarray(j.child_bvec.orient))
-            q[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.asarray(j.parent_bvec.pos)))
+        if self.root == "free":  # exact (the SRDF holds it to 15 digits)
+            q[:7] = pin.SE3ToXYZQUAT(root_rest_placement(self.system))
         return q
 
     # ------------------------------------------------------------------ shapes

@@ -123,7 +123,8 @@ def test_export_writes_urdf_srdf_and_mesh(spec_path, tmp_path, capsys):
     assert (out / f"{system.name}.urdf").read_text() == robot.urdf
     assert (out / f"{system.name}.srdf").read_text() == robot.srdf
     model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"))
-    assert model.nq == robot.nq
+    assert list(model.names)[1:] == list(robot.joint_names)  # continuous joints: (cos, sin) there, one angle here
+    assert model.nq == robot.nq + sum(1 for j in system.joints if j.kind == "revolute" and j.limits is None)
     links = {link.get("name") for link in ET.parse(out / f"{system.name}.urdf").getroot().iter("link")}
     assert links == {"world", *robot.bodies}
     assert (out / "meshes" / "unit_sphere.obj").read_text().startswith("# unit sphere")
@@ -154,18 +155,19 @@ def test_export_unknown_system_is_an_error_and_writes_nothing(two_systems, tmp_p
     assert not out.exists()
 
 
-def test_export_root_free_has_no_world_link(spec_path, tmp_path, capsys):
+def test_export_root_free_has_a_floating_joint_from_world(spec_path, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["export", str(spec_path), "-o", str(out), "--root", "free"]) == 0
     (system,) = kms2pin.parse(spec_path).systems
     urdf = ET.parse(out / f"{system.name}.urdf").getroot()
-    assert "world" not in {link.get("name") for link in urdf.iter("link")}
-    assert all(j.find("parent").get("link") != "world" for j in urdf.iter("joint"))
-    assert len(list(urdf.iter("joint"))) == len(system.joints) - 1
+    assert {link.get("name") for link in urdf.iter("link")} == {"world", *(b.name for b in system.bodies)}
+    from_world = [j for j in urdf.iter("joint") if j.find("parent").get("link") == "world"]
+    assert [(j.get("name"), j.get("type")) for j in from_world] == [("root_joint", "floating")]
+    assert len(list(urdf.iter("joint"))) == len(system.joints)  # the spec's joint to the inertial frame replaced
     srdf = ET.parse(out / f"{system.name}.srdf").getroot()
     assert system.joints[0].name not in {j.get("name") for j in srdf.iter("joint")}
-    model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"), pin.JointModelFreeFlyer())
-    assert model.nq == kms2pin.load(spec_path, root="free").nq
+    model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"))  # no free flyer to pass
+    assert list(model.names)[1:] == list(kms2pin.load(spec_path, root="free").joint_names)
 
 
 def test_export_on_a_model_error_writes_nothing(broken, tmp_path, capsys):

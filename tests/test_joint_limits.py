@@ -10,8 +10,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
+from _interop import check_urdf_exe as _check_urdf
 from conftest import SPECS
-from test_export_urdf import _check_urdf
 
 from kms2pin import SpecError, parse_text
 from kms2pin.cli import main

@@ -474,7 +474,8 @@ def test_body_jacobian_matches_finite_differences(robots, root):
 def test_srdf_rest_state_holds_the_default_angles(robots):
     for robot in robots:
         state = ET.fromstring(robot.srdf).find("group_state[@name='rest']")
-        values = {j.get("name"): float(j.get("value")) for j in state.findall("joint")}
+        values = {j.get("name"): float(j.get("value")) for j in state.findall("joint") if j.get("name") != "root_joint"}
+        assert (state.find("joint[@name='root_joint']") is not None) == (robot.root == "free")  # test_export_urdf
         expected = {
             j.name: math.radians(j.default_angle)
             for j in robot.system.joints

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import re
 import runpy
+import shlex
 from pathlib import Path
 
+import numpy as np
+
 import kms2pin
+from kms2pin.cli import main
 from kms2pin.ecm import Trajectory, evaluate, make_motion
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,3 +77,27 @@ def test_the_readme_quick_start_is_what_ci_runs():
     assert len(commands) == 2
     for command in commands:
         assert command in ci
+
+
+def test_the_export_guides_other_tools_example_runs_and_agrees_with_kms2pin(tmp_path, monkeypatch, capsys):
+    """The export commands and the Pinocchio/MuJoCo example of docs/export.md's 'Using the
+    exports in other tools', run in a scratch folder: the joint count and the head's rest
+    position it prints are kms2pin's own."""
+    guide = (ROOT / "docs" / "export.md").read_text()
+    section = guide[guide.index("## Using the exports in other tools") :]
+    commands = re.findall(r"```bash\n(.*?)```", section, re.S)[0].strip().splitlines()
+    block = re.findall(r"```python\n(.*?)```", section, re.S)[0]
+    (tmp_path / "specs").symlink_to(ROOT / "specs")
+    monkeypatch.chdir(tmp_path)
+    for command in commands:
+        argv = shlex.split(command, comments=True)
+        assert argv[0] == "kms2pin" and main(argv[1:]) == 0
+    capsys.readouterr()
+    (tmp_path / "example.py").write_text(block)
+    runpy.run_path(str(tmp_path / "example.py"), run_name="__main__")
+    names, head = capsys.readouterr().out.splitlines()
+    robot = kms2pin.load(ROOT / "specs" / "fullbody.kms", root="free")
+    continuous = sum(1 for j in robot.system.joints[1:] if j.kind == "revolute" and j.limits is None)
+    assert names.split() == ["root_joint", str(7 + 2 * continuous), str(robot.nv)]
+    np.testing.assert_allclose(np.array(head.strip("[]").split(), dtype=float),
+                               robot.body_pose(robot.q_rest, "head").translation, atol=1e-3)  # numpy's printed digits

@@ -1,8 +1,13 @@
 """Render synthetic silhouette masks of a model moving (exact ray casting of the inner
-ellipsoids), with optional noise and body-size mismatch, for `kms2pin track`.
+ellipsoids, or of capsules in their place), with optional noise and body-size mismatch,
+for `kms2pin track`.
 
 Writes DIR/camK/frame_NNNNN.png (one folder per camera), DIR/cameras.json,
-DIR/truth.csv and DIR/truth.npz.  --noise LEVEL (e.g. 0.05 = "5 % noise") drives
+DIR/truth.csv and DIR/truth.npz.  --motion is a named motion (walk, sweep, random) or a
+trajectory CSV of the model (the format track writes and truth.csv has; joint angles in
+degrees, a free root as root_x ... root_qw), rendered frame by frame.  --shape capsule
+renders each body as a capsule along its inner ellipsoid's longest semi-axis a, end to
+end 2a, its radius the mean of the other two semi-axes.  --noise LEVEL (e.g. 0.05 = "5 % noise") drives
 ragged boundaries (edge pixels flipped with probability 4 LEVEL), holes
 (100 LEVEL discs), false blobs (40 LEVEL discs) and salt-and-pepper (LEVEL/10).
 --size-mismatch FRAC renders each body's semi-axes scaled by a random factor in
@@ -16,11 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cli import UsageError
 from ..ecm.camera import Camera
 from ..ecm.motions import MOTIONS, make_motion
-from ..ecm.synth import synthesize
+from ..ecm.synth import SHAPES, synthesize
 from ..ecm.tracker import Trajectory
-from ..errors import Kms2pinError
+from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
 from ._common import add_spec_argument, count, existing_file, number, positive_count, read_model
@@ -31,8 +37,14 @@ HELP = "render synthetic silhouette masks of a moving model (for track / evaluat
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_spec_argument(p)
-    p.add_argument("--motion", choices=MOTIONS, default="walk", help="motion (default: walk)")
-    p.add_argument("--frames", type=positive_count, default=60, help="number of frames (default: 60)")
+    p.add_argument("--motion", default="walk", metavar="NAME|FILE.csv",
+                   help=f"{', '.join(MOTIONS)} (default: walk), or a trajectory CSV of the model "
+                   "(as track writes it, or synth's truth.csv)")
+    p.add_argument("--frames", type=positive_count, metavar="N",
+                   help="number of frames (default: 60; with a CSV motion, all its frames; N takes the first N)")
+    p.add_argument("--shape", choices=SHAPES, default="ellipsoid",
+                   help="render the inner ellipsoids (default), or capsules in their place: along the longest "
+                   "semi-axis a, end to end 2a, radius the mean of the other two")
     p.add_argument("--cameras", metavar="CAMS.json", help="camera list (default: one Camera.default())")
     p.add_argument("--root", choices=("spec", "free"), default="free", help="root joint (default: free)")
     p.add_argument("--noise", type=number(0.0, 1.0), default=0.0, metavar="LEVEL", help="noise level, e.g. 0.05 (default 0)")
@@ -50,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         existing_file(args.cameras)  # a usage error, as for the spec
     cameras = Camera.list_from_json(args.cameras) if args.cameras else [Camera.default()]
     rng = np.random.default_rng(args.seed)
-    motion = make_motion(robot, args.motion, args.frames, rng)
+    motion = _motion(robot, args, rng)
     out = Path(args.output)
     dirs = [out / f"cam{c}" for c in range(len(cameras))]
     try:
@@ -61,12 +73,30 @@ def run(args: argparse.Namespace) -> int:
         truth.to_csv(out / "truth.csv")
         truth.to_npz(out / "truth.npz")
         for f, masks in synthesize(robot, motion, cameras, noise=args.noise, size_mismatch=args.size_mismatch,
-                                   rng=rng):
+                                   rng=rng, shape=args.shape):
             for d, m in zip(dirs, masks):
                 write_png_atomically(d / MASK_NAME.format(f), m.astype(np.uint8) * 255)
-        stale = sum(remove_masks_from(d, args.frames) for d in dirs)
+        stale = sum(remove_masks_from(d, len(motion)) for d in dirs)
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
     extra = f" (removed {stale} older mask(s) beyond the sequence)" if stale else ""
-    print(f"{out}: {args.frames} frames x {len(cameras)} camera(s){extra}")
+    shape = "" if args.shape == "ellipsoid" else f" ({args.shape}s)"
+    print(f"{out}: {len(motion)} frames x {len(cameras)} camera(s){shape}{extra}")
     return 0
+
+
+def _motion(robot: Robot, args: argparse.Namespace, rng: np.random.Generator) -> np.ndarray:
+    """The configurations (frames, nq) to render: a named motion, or a trajectory CSV's
+    (its first ``--frames``)."""
+    if args.motion in MOTIONS:
+        return make_motion(robot, args.motion, args.frames or 60, rng)
+    if not Path(args.motion).exists():
+        raise UsageError(f"--motion: '{args.motion}' is neither a motion ({', '.join(MOTIONS)}) nor a file")
+    if Path(args.motion).is_dir():
+        raise UsageError(f"--motion: {args.motion}: is a directory, not a trajectory CSV file")
+    q = Trajectory.from_csv(robot, args.motion).q
+    if not len(q):
+        raise InputDataError(f"{args.motion}: the trajectory has no frames")
+    if args.frames is not None and args.frames > len(q):
+        raise UsageError(f"--frames {args.frames}: {args.motion} has {len(q)} frames")
+    return q[: args.frames]

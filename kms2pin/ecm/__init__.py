@@ -4,8 +4,8 @@ its options, synthetic data and evaluation.
 The image geometry (:mod:`~kms2pin.ecm.camera`, :mod:`~kms2pin.ecm.projection`,
 :mod:`~kms2pin.ecm.density`, :mod:`~kms2pin.ecm.raycast`)
 is independent of the rest of kms2pin: bodies are ``(world_T_body, semi_axes)`` given
-as ``pin.SE3`` and arrays.  The tracker (:mod:`~kms2pin.ecm.tracker`) works on a
-:class:`kms2pin.Robot`.
+as ``pin.SE3`` and arrays (the ray casting also takes a :class:`Capsule`).  The tracker
+(:mod:`~kms2pin.ecm.tracker`) works on a :class:`kms2pin.Robot`.
 """
 
 from kms2pin.ecm.camera import Camera
@@ -37,7 +37,7 @@ from kms2pin.ecm.projection import (
     ellipsoid_visibility,
     inside_conic,
 )
-from kms2pin.ecm.raycast import render_labels, render_mask
+from kms2pin.ecm.raycast import Capsule, render_labels, render_mask
 from kms2pin.ecm.synth import synthesize
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
@@ -45,6 +45,7 @@ from kms2pin.ecm.trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 __all__ = [
     "BBox",
     "Camera",
+    "Capsule",
     "Ellipse",
     "FrameResult",
     "HypothesisOptions",

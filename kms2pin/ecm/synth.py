@@ -1,7 +1,10 @@
 """Synthetic silhouettes for ECM tests and benchmarks (``kms2pin synth``).
 
 Masks are the inner ellipsoids rendered by exact ray casting
-(:func:`kms2pin.ecm.raycast.render_mask`).  Optional corruption, all driven by
+(:func:`kms2pin.ecm.raycast.render_mask`), or with ``shape="capsule"`` a capsule in
+place of each (:meth:`~kms2pin.ecm.raycast.Capsule.of_ellipsoid`: along the longest
+semi-axis a, end to end 2a, radius the mean of the other two), a subject whose outline
+the tracking model does not have exactly.  Optional corruption, all driven by
 one ``noise`` level ``L`` (e.g. ``0.05`` = "5 % noise"), applied in this order:
 
 - **ragged boundaries**: every pixel within 1 pixel of the outline is flipped
@@ -25,9 +28,12 @@ from collections.abc import Iterator, Sequence
 import cv2
 import numpy as np
 
+from ..errors import OptionError
 from ..robot import Robot
 from .camera import Camera
-from .raycast import render_mask
+from .raycast import Body, Capsule, render_mask
+
+SHAPES = ("ellipsoid", "capsule")
 
 
 def body_scales(robot: Robot, size_mismatch: float, rng: np.random.Generator) -> np.ndarray:
@@ -38,12 +44,18 @@ def body_scales(robot: Robot, size_mismatch: float, rng: np.random.Generator) ->
     return rng.uniform(1.0 - size_mismatch, 1.0 + size_mismatch, (n, 3))
 
 
-def render(robot: Robot, q: np.ndarray, cameras: Sequence[Camera], scales: np.ndarray | None = None) -> list[np.ndarray]:
-    """Clean (H, W) bool silhouettes of the inner ellipsoids at ``q``, one per camera."""
+def render(robot: Robot, q: np.ndarray, cameras: Sequence[Camera], scales: np.ndarray | None = None,
+           shape: str = "ellipsoid") -> list[np.ndarray]:
+    """Clean (H, W) bool silhouettes at ``q``, one per camera, of the inner ellipsoids (their
+    semi-axes times ``scales``), or of capsules in their place (``shape="capsule"``)."""
+    if shape not in SHAPES:
+        raise OptionError(f"shape must be one of {', '.join(SHAPES)}, not {shape!r}")
     poses = robot.body_poses(q)
     n = len(robot.bodies)
     scales = np.ones((n, 3)) if scales is None else scales
-    bodies = [(P, robot.inner(b) * s) for P, b, s in zip(poses, robot.bodies, scales)]
+    bodies: list[Body] = [(P, robot.inner(b) * s) for P, b, s in zip(poses, robot.bodies, scales)]
+    if shape == "capsule":
+        bodies = [Capsule.of_ellipsoid(P, axes) for P, axes in bodies]
     return [render_mask(c, bodies) for c in cameras]
 
 
@@ -85,12 +97,14 @@ def synthesize(
     noise: float = 0.0,
     size_mismatch: float = 0.0,
     rng: np.random.Generator | None = None,
+    shape: str = "ellipsoid",
 ) -> Iterator[tuple[int, list[np.ndarray]]]:
     """Yield ``(frame, masks)`` for every configuration of ``motion`` (T, nq), one
-    mask per camera (a single :class:`Camera` counts as a list of one)."""
+    mask per camera (a single :class:`Camera` counts as a list of one); ``shape`` as in
+    :func:`render`."""
     cameras = [cameras] if isinstance(cameras, Camera) else cameras
     rng = np.random.default_rng() if rng is None else rng
     scales = body_scales(robot, size_mismatch, rng)
     for f, q in enumerate(motion):
-        masks = render(robot, q, cameras, scales)
+        masks = render(robot, q, cameras, scales, shape)
         yield f, [corrupt(m, noise, rng) for m in masks]

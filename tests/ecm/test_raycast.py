@@ -1,13 +1,14 @@
-"""Exact ray casting of ellipsoids."""
+"""Exact ray casting of ellipsoids and capsules."""
 
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+import pytest
 from scipy import ndimage
 
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.raycast import render_labels, render_mask
+from kms2pin.ecm.raycast import Capsule, intersect_capsule, intersect_ellipsoid, render_labels, render_mask
 
 from ._util import DIST, random_camera, random_rotation
 
@@ -65,3 +66,98 @@ def test_a_distorted_render_contains_the_projection_of_every_surface_point():
     assert ok.sum() > 10000 and grown[px[ok, 1], px[ok, 0]].all()
     undistorted = Camera(cam.K, T, cam.width, cam.height)
     assert (render_mask(undistorted, [(pose, axes)]) != mask).sum() > 20  # distortion did matter
+
+
+# ----------------------------------------------------------------------------- capsules
+
+
+def _segment_distance(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Distance of each point (N, 3) to the segment p0-p1: to the nearest point, its
+    parameter clamped to [0, 1]."""
+    axis = p1 - p0
+    s = np.clip((points - p0) @ axis / max(axis @ axis, 1e-300), 0.0, 1.0)
+    return np.linalg.norm(points - (p0 + s[:, None] * axis), axis=1)
+
+
+def _capsule_hits_by_root_finding(origin, direction, p0, p1, r, reach=50.0):
+    """(t_near, t_far) of the unit ray origin + t direction and the capsule of radius r
+    about p0-p1, by minimising and bracketing f(t) = distance to the segment - r (convex
+    in t); None if the line misses.  Independent of intersect_capsule's algebra."""
+    from scipy.optimize import brentq, minimize_scalar
+
+    def f(t):
+        return _segment_distance((origin + t * direction)[None], p0, p1)[0] - r
+
+    best = minimize_scalar(f, bounds=(-reach, reach), method="bounded", options={"xatol": 1e-12})
+    if best.fun > 0:
+        return None
+    return (brentq(f, -reach, best.x, xtol=1e-14), brentq(f, best.x, reach, xtol=1e-14))
+
+
+def test_capsule_ray_hits_equal_an_independent_root_finding_of_the_distance_to_the_segment():
+    rng = np.random.default_rng(11)
+    hits = misses = 0
+    for k in range(60):
+        p0, r = rng.uniform(-1, 1, 3), rng.uniform(0.1, 0.6)
+        p1 = p0 if k % 10 == 0 else p0 + rng.normal(size=3) * rng.uniform(0.2, 1.5)  # every tenth a sphere
+        origin = rng.uniform(-6, 6, 3)
+        target = (p0 + p1) / 2 + rng.normal(size=(8, 3)) * 0.6
+        dirs = target - origin
+        if k % 7 == 0 and np.any(p1 != p0):  # rays along the axis, through both caps
+            dirs[0] = p1 - p0
+            origin = p0 - 3.0 * (p1 - p0)
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        near, far = intersect_capsule(origin, dirs, Capsule(p0, p1, r))
+        for d, tn, tf in zip(dirs, near, far):
+            expected = _capsule_hits_by_root_finding(origin, d, p0, p1, r)
+            if expected is None:
+                misses += 1
+                assert np.isnan(tn) and np.isnan(tf)
+            else:
+                hits += 1
+                np.testing.assert_allclose([tn, tf], expected, atol=1e-9)
+    assert hits > 100 and misses > 100
+
+
+def test_the_capsule_of_an_ellipsoid_spans_its_longest_axis_end_to_end_with_the_mean_radius():
+    rng = np.random.default_rng(12)
+    R = random_rotation(rng)
+    centre = np.array([0.3, -0.2, 4.0])
+    axes = np.array([0.2, 0.7, 0.3])  # longest: body y, a = 0.7; radius (0.2 + 0.3) / 2
+    capsule = Capsule.of_ellipsoid(pin.SE3(R, centre), axes)
+    along = R[:, 1]
+    near, far = intersect_capsule(centre - 5 * along, along[None], capsule)
+    assert far[0] - near[0] == pytest.approx(2 * 0.7, abs=1e-12)
+    for across in (R[:, 0], R[:, 2], (R[:, 0] + R[:, 2]) / np.sqrt(2)):
+        near, far = intersect_capsule(centre - 5 * across, across[None], capsule)
+        assert far[0] - near[0] == pytest.approx(2 * 0.25, abs=1e-12)
+    assert capsule.radius == pytest.approx(0.25)
+    # a sphere is its own capsule: the same hits as the ellipsoid's
+    sphere = (pin.SE3(R, centre), np.full(3, 0.4))
+    dirs = rng.normal(size=(50, 3)) * 0.1 + [0.0, 0.0, 1.0]
+    np.testing.assert_allclose(
+        np.array(intersect_capsule(np.zeros(3), dirs, Capsule.of_ellipsoid(*sphere))),
+        np.array(intersect_ellipsoid(np.zeros(3), dirs, *sphere)), atol=1e-12, equal_nan=True)
+
+
+def test_a_capsule_render_holds_every_inside_point_and_only_pixels_whose_rays_meet_it():
+    rng = np.random.default_rng(13)
+    cam = random_camera(rng, kind=1, dist=DIST)
+    T = cam.world_T_camera
+    capsule = Capsule.of_ellipsoid(pin.SE3(random_rotation(rng), T.translation + T.rotation @ [0.3, 0.2, 5.0]),
+                                   [0.3, 1.2, 0.4])
+    mask = render_mask(cam, [capsule])
+    # points inside: within r of a point of the segment
+    s = rng.uniform(0, 1, (20000, 1))
+    v = rng.normal(size=(20000, 3))
+    v *= capsule.radius * rng.uniform(0, 1, (20000, 1)) / np.linalg.norm(v, axis=1, keepdims=True)
+    inside = capsule.start + s * (capsule.end - capsule.start) + v
+    px = np.rint(cam.project(inside)).astype(int)
+    ok = (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+    assert ok.sum() > 10000 and ndimage.binary_dilation(mask)[px[ok, 1], px[ok, 0]].all()
+    # every masked pixel's ray comes within r of the segment (sampled along the ray)
+    v_, u_ = np.nonzero(mask)
+    dirs, origin = cam.rays(np.column_stack([u_, v_]).astype(float))
+    t = np.linspace(0.0, 12.0, 2401)
+    closest = np.array([_segment_distance(origin + t[:, None] * d, capsule.start, capsule.end).min() for d in dirs[::7]])
+    assert len(closest) > 100 and (closest <= capsule.radius + 0.01).all()

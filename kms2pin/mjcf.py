@@ -1,0 +1,158 @@
+"""Model -> MJCF text, MuJoCo's own format (``kms2pin export --format mjcf``).
+
+The same tree as the URDF (:mod:`kms2pin.urdf`), in MuJoCo's terms:
+
+- Bodies nest as the joint tree.  A body's frame is its URDF link frame (at its joint
+  to its parent, with the body's axes), placed in its parent's by ``pos`` and ``quat``
+  (w, x, y, z) = the joint origin (a_ij, R_align; eq. 2.12), so MuJoCo's ``xpos`` and
+  ``xquat`` are Pinocchio's BODY frames.
+- At the ellipsoid centre (-a_ji in the body frame): the inner ellipsoid as a native
+  ``ellipsoid`` geom (class ``kms2pin_inner``, geom group 0; it collides, and its solid
+  ellipsoid of density :data:`~kms2pin.urdf.DENSITY` is the body's mass and inertia);
+  the outer one for show only (class ``kms2pin_outer``, group 1, ``contype="0"
+  conaffinity="0"``, kept out of the inertia by ``inertiagrouprange="0 0"``); and a
+  site ``<body>_centre``, Pinocchio's frame of that name.
+- Joints, one writer per kind of :class:`~kms2pin.model.Joint` (:data:`JOINT_WRITERS`):
+  a revolute joint is a ``hinge`` about o_ji with a ``range`` (radians) only where the
+  spec gives limits; a fixed joint welds the body to its parent (no element).  A free
+  root is ``<freejoint name="root_joint"/>`` on a root body placed at its rest pose
+  (a free joint's qpos is the body's world pose: x y z, then w x y z).
+- A keyframe ``rest`` holds the spec's rest pose; ``<contact><exclude>`` the adjacent
+  pairs the SRDF excludes; gravity is 9.81 along -y (the thesis's models and cameras
+  have +y up; lengths in the spec's units, metres in the thesis's models).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pinocchio as pin
+
+from .model import Body, Joint, System
+from .urdf import (
+    DENSITY,
+    INNER_RGBA,
+    OUTER_RGBA,
+    ROOT_JOINT,
+    check_root_joint_name,
+    joint_origin,
+    rest_angle,
+    root_rest_placement,
+)
+from .xmltext import attr, comment, num, vec
+
+GRAVITY = (0.0, -9.81, 0.0)  # spec units / s^2 (m/s^2 in the thesis's models), +y up
+INNER_GROUP = 0  # geom group of the inner ellipsoids (collide, carry the mass)
+OUTER_GROUP = 1  # geom group of the outer ellipsoids (drawn only)
+
+
+def _hinge(joint: Joint) -> tuple[list[str], list[float]]:
+    """A revolute joint: a hinge about o_ji in the child frame, ranged where the spec limits it."""
+    span = "" if joint.limits is None else f' range="{vec(np.radians(joint.limits))}"'
+    return [f'<joint name={attr(joint.name)} type="hinge" axis="{vec(joint.child_bvec.orient)}"{span}/>'], [
+        rest_angle(joint)
+    ]
+
+
+#: Per joint kind of the model: the MJCF elements inside the child body and the joint's
+#: rest qpos (MuJoCo's coordinates, in element order).
+JOINT_WRITERS: dict[str, Callable[[Joint], tuple[list[str], list[float]]]] = {
+    "fixed": lambda joint: ([], []),
+    "revolute": _hinge,
+}
+
+
+def _free_root(system: System) -> tuple[str, list[str], list[float]]:
+    """The root body's placement attributes, its ``freejoint`` and rest qpos (x y z w x y z)."""
+    M = root_rest_placement(system)
+    q = pin.Quaternion(M.rotation)
+    wxyz = [q.w, q.x, q.y, q.z]
+    place = f'pos="{vec(M.translation)}" quat="{vec(wxyz)}"'
+    return place, [f'<freejoint name="{ROOT_JOINT}"/>'], [*M.translation, *wxyz]
+
+
+def _open_body(system: System, body: Body, joint: Joint, free_root: bool) -> tuple[list[str], list[float]]:
+    """The lines that open ``body`` (up to its children), the child of ``joint``, and its rest qpos."""
+    if free_root and joint.parent is None:
+        place, elements, qpos = _free_root(system)
+    else:
+        xyz, R = joint_origin(system, joint)
+        q = pin.Quaternion(R)
+        place = f'pos="{vec(xyz)}" quat="{vec([q.w, q.x, q.y, q.z])}"'
+        elements, qpos = JOINT_WRITERS[joint.kind](joint)
+    centre = vec(-np.asarray(joint.child_bvec.pos, dtype=float))
+    name = body.name
+    lines = [f"<body name={attr(name)} {place}>", *("  " + e for e in elements)]
+    lines += [
+        f'  <geom name={attr(name + "_inner")} class="kms2pin_inner" size="{vec(body.inner)}" pos="{centre}"/>',
+        f'  <geom name={attr(name + "_outer")} class="kms2pin_outer" size="{vec(body.outer)}" pos="{centre}"/>',
+        f'  <site name={attr(name + "_centre")} pos="{centre}"/>',
+    ]
+    return lines, qpos
+
+
+def _worldbody(system: System, free_root: bool) -> tuple[list[str], list[float]]:
+    """The nested bodies (depth first, with an explicit stack: no recursion limit) and the
+    rest qpos in MuJoCo's order (bodies depth first, joints in element order)."""
+    bodies = {b.name: b for b in system.bodies}
+    children: dict[str | None, list[Joint]] = {}
+    for j in system.joints:
+        children.setdefault(j.parent, []).append(j)
+    lines: list[str] = []
+    qpos: list[float] = []
+    stack: list[tuple[Joint, bool]] = [(j, False) for j in reversed(children.get(None, []))]
+    depth = 2
+    while stack:
+        joint, opened = stack.pop()
+        if opened:
+            depth -= 1
+            lines.append("  " * depth + "</body>")
+            continue
+        body_lines, body_qpos = _open_body(system, bodies[joint.child], joint, free_root)
+        lines += ["  " * depth + line for line in body_lines]
+        qpos += body_qpos
+        depth += 1
+        stack.append((joint, True))
+        stack += [(c, False) for c in reversed(children.get(joint.child, []))]
+    return lines, qpos
+
+
+def to_mjcf(system: System, source: str = "", free_root: bool = False) -> str:
+    """MJCF text of one system (module docstring); ``source`` is the spec's file name for
+    the header comment.  ``free_root``: the joint to the inertial frame is replaced by a
+    free joint :data:`~kms2pin.urdf.ROOT_JOINT`."""
+    if free_root:
+        check_root_joint_name(system)
+    bodies, qpos = _worldbody(system, free_root)
+    head = comment(
+        f"generated by kms2pin from {source or 'a spec'}; do not edit. Body frames sit at each body's joint to its "
+        "parent; the ellipsoids and the <body>_centre sites at the ellipsoid centres. Inner ellipsoids (group "
+        f"{INNER_GROUP}) collide and carry the mass; outer ones (group {OUTER_GROUP}) are drawn only. "
+        "+y is up; keyframe 'rest' is the spec's rest pose."
+    )
+    out = [
+        head,
+        f"<mujoco model={attr(system.name)}>",
+        f'  <compiler angle="radian" autolimits="true" inertiagrouprange="{INNER_GROUP} {INNER_GROUP}"/>',
+        f'  <option gravity="{vec(GRAVITY)}"/>',
+        "  <default>",
+        '    <default class="kms2pin_inner">',
+        f'      <geom type="ellipsoid" group="{INNER_GROUP}" density="{num(DENSITY)}" rgba="{vec(INNER_RGBA)}"/>',
+        "    </default>",
+        '    <default class="kms2pin_outer">',
+        f'      <geom type="ellipsoid" group="{OUTER_GROUP}" contype="0" conaffinity="0" rgba="{vec(OUTER_RGBA)}"/>',
+        "    </default>",
+        "  </default>",
+        "  <worldbody>",
+        *bodies,
+        "  </worldbody>",
+    ]
+    pairs = [j for j in system.joints if j.parent is not None]
+    if pairs:
+        out.append("  <contact>")
+        out += [f"    <exclude body1={attr(j.parent)} body2={attr(j.child)}/>" for j in pairs]
+        out.append("  </contact>")
+    rest = f' qpos="{vec(qpos)}"' if qpos else ""
+    out += ["  <keyframe>", f'    <key name="rest"{rest}/>', "  </keyframe>", "</mujoco>"]
+    return "\n".join(out) + "\n"
