@@ -53,6 +53,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except IsADirectoryError as err:
         print(f"kms2pin {args.command}: error: {err.filename}: is a directory", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as err:  # an input file named on the command line cannot be read (outputs say "cannot write")
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"kms2pin {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
+        return EXIT_USAGE if err.filename else EXIT_MODEL
     except Kms2pinError as err:
         print(str(err), file=sys.stderr)
         return EXIT_MODEL

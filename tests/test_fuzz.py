@@ -232,6 +232,8 @@ def test_pathological_inputs_are_spec_errors(snippet):
 
 
 TOO_LARGE = r"innerLam semi-axes must be at most 1e\+06, got \(1e\+300, 1, 1\)"
+TOO_SMALL = r"innerLam semi-axes must be at least 1e-06, got \(1e-300, 1, 1\)"
+FAR = r"pos coordinates of 'a' of body 'b' must be within \+-1e\+06, got \(1e\+300, 0, 0\)"
 ZERO_ORIENT = r"orient vector of 'a' of body 'b' is zero; a bound vector needs a direction"
 
 
@@ -239,10 +241,12 @@ ZERO_ORIENT = r"orient vector of 'a' of body 'b' is zero; a bound vector needs a
     "inner, outer, pos, orient, angle, refused",
     [
         ("1e300, 1, 1", "1e300, 2, 2", "0, 0, 0", "1, 0, 0", "0", TOO_LARGE),
-        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0", None),
+        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0", FAR),
+        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "1, 0, 0", "0", TOO_SMALL),
+        ("1e-6, 1e-6, 1e6", "1e-6, 1e6, 1e6", "1e6, -1e6, 1e6", "1, 0, 0", "0", None),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e300, 1e300, 1", "0", None),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e-300, 0, 0", "0", ZERO_ORIENT),
-        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0", ZERO_ORIENT),
+        ("1e-6, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0", ZERO_ORIENT),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1, 0, 0", "1e18", None),
         ("1, 1, 1", "1, 1, 1", "0, 0, 0", "-1, 0, 0", "-1e300", None),
     ],
@@ -270,7 +274,7 @@ def test_extreme_but_legal_numbers_compile_and_load_or_are_refused_with_a_clear_
     v /= np.abs(v).max()  # scaled first: the norm of (1e300, 1e300, 1) overflows
     np.testing.assert_allclose(o, v / np.linalg.norm(v), rtol=0, atol=1e-15)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("error")  # the accepted ranges load without a NumPy warning
         robot = kms2pin.load(text)
         poses = robot.body_poses(robot.q_rest)
     assert all(np.isfinite(P.homogeneous).all() for P in poses)

@@ -35,7 +35,7 @@ from ..ecm.projection import ProjectionError, ellipse_parameters, ellipsoid_coni
 from ..ecm.tracker import SEGMENTED_MASKS, Tracker, Trajectory, TrajectoryCsvWriter
 from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
-from ..video.io import remove_masks_from, write_mask
+from ..video.io import decode_image, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
 from ._common import Once, add_spec_argument, count, existing_file, lighting_notes, non_negative, positive, read_model
 from .segment import add_lighting_arguments
@@ -233,9 +233,10 @@ def _size_error(path: Path, frame: int, width: int, height: int, camera: Camera)
 
 
 def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputDataError(f"{path}: frame {frame}: cannot read the image (not a PNG, or damaged)")
+    try:
+        img = decode_image(path)  # refuses an image over 8192 pixels a side before decoding it
+    except InputDataError as err:
+        raise InputDataError(f"{path}: frame {frame}: cannot read the image ({err.args[0].split(': ', 1)[-1]})") from None
     if img.ndim == 3:
         img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
     if img.shape != camera.shape:

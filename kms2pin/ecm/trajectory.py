@@ -5,6 +5,7 @@ and :class:`TrajectoryCsvWriter`, which writes the CSV a frame at a time."""
 from __future__ import annotations
 
 import csv
+import io
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -13,6 +14,7 @@ import numpy as np
 
 from ..errors import InputDataError
 from ..robot import Robot
+from ..userfile import MAX_DATA_BYTES, read_user_file
 
 
 @dataclass(frozen=True)
@@ -200,9 +202,9 @@ class Trajectory:
         cell (every joint coordinate must be a finite number).
         """
         try:
-            with open(path, newline="", encoding="utf-8-sig") as f:
-                reader = csv.reader(f)
-                rows = [(reader.line_num, row) for row in reader]
+            text = read_user_file(path, MAX_DATA_BYTES).decode("utf-8-sig")
+            reader = csv.reader(io.StringIO(text, newline=""))
+            rows = [(reader.line_num, row) for row in reader]
         except OSError as err:
             raise InputDataError(f"{path}: cannot read: {err.strerror}") from None
         except UnicodeDecodeError:
