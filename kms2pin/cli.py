@@ -1,7 +1,9 @@
 """``kms2pin`` command line: one sub-command per module in :mod:`kms2pin.commands`.
 
 Exit status: 0 success, 1 a model/data error (reported compiler-style on stderr),
-2 a usage error (bad arguments, missing input file).
+2 a usage error (bad arguments, missing or unreadable input file), 130 interrupted
+(Ctrl-C), 143 terminated (SIGTERM); interrupted or terminated, a command's outputs
+are complete up to where it stopped.
 """
 
 from __future__ import annotations
@@ -13,9 +15,11 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__, commands
+from .commands._outputs import Terminated, sigterm_as_interrupt
 from .errors import Kms2pinError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
+EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143  # 128 + SIGINT, 128 + SIGTERM, as a shell reports them
 
 
 class UsageError(Exception):
@@ -43,7 +47,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args._run(args) or 0)
+        with sigterm_as_interrupt():
+            return int(args._run(args) or 0)
     except UsageError as err:
         print(f"kms2pin {args.command}: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -63,9 +68,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `kms2pin check --json x | head`
         sys.stderr.close()
         return EXIT_OK
+    except Terminated:
+        print(f"kms2pin {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print(f"kms2pin {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -85,6 +85,10 @@ class ExportError(Kms2pinError):
     """Writing URDF/SRDF/meshes failed (e.g. the output directory is not writable)."""
 
 
+class OutputError(Kms2pinError):
+    """An output folder cannot be used: another run is writing to it, or it cannot be created."""
+
+
 class RobotError(Kms2pinError, ValueError):
     """A request to a loaded robot names something it does not have, or passes a
     configuration it cannot use (wrong shape, not finite, a zero root quaternion)."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shutil
 import sys
@@ -38,6 +39,7 @@ from ..robot import Robot
 from ..video.io import decode_image, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
 from ._common import Once, add_spec_argument, count, existing_file, lighting_notes, non_negative, positive, read_model
+from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
 from .segment import add_lighting_arguments
 
 NAME = "track"
@@ -142,6 +144,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png")
+OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
 def _remove_earlier_outputs(out: Path, cameras: int, frames: int | None = None) -> int:
@@ -310,6 +313,7 @@ def _auto_init(robot: Robot, cameras, masks, frame: int) -> tuple[np.ndarray, fl
     return res.q, res.fit
 
 
+@owns_output
 def run(args: argparse.Namespace) -> int:
     up = _up_vector(args.up)
     spec = read_model(args.spec)
@@ -407,7 +411,8 @@ def run(args: argparse.Namespace) -> int:
     )
     try:
         out.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(args.spec, out / "model.kms")
+        with replaced(out / "model.kms") as tmp:
+            shutil.copyfile(args.spec, tmp)
         meta = {
             "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(cameras),
             "masks": str(masks_dir), "first_frame": numbers[0], "frames": len(numbers),
@@ -427,8 +432,9 @@ def run(args: argparse.Namespace) -> int:
             meta["shadow_detection"] = not args.no_shadows
             meta["shadow_threshold"] = args.shadow_threshold
             meta["gain_compensation"] = not args.no_gain_compensation
-        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
-        Camera.list_to_json(cameras, out / "cameras.json")
+        write_files_atomically({out / "meta.json": json.dumps(meta, indent=2) + "\n"})
+        with replaced(out / "cameras.json") as tmp:
+            Camera.list_to_json(cameras, tmp)
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
 
@@ -459,17 +465,18 @@ def run(args: argparse.Namespace) -> int:
                     tracker, r, note = reacquire.update(tracker, r, masks, source=f"{names}: frame {frame}")
                     if note:
                         print(f"note: frame {frame}: {note}", file=sys.stderr)
-                csv_out.write(frame, r)
-                qs.append(r.q)
-                results.append(r)
-                if not args.no_video:
-                    img = _overlay(robot, cameras, masks, r.q, tracker.scales)
-                    if video is None:
-                        video = cv2.VideoWriter(str(out / "overlay.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                                args.fps, (img.shape[1], img.shape[0]))
-                    video.write(img)
-    except KeyboardInterrupt:
-        interrupted = True
+                with interrupts_deferred():  # a frame is in every output or in none
+                    csv_out.write(frame, r)
+                    qs.append(r.q)
+                    results.append(r)
+                    if not args.no_video:
+                        img = _overlay(robot, cameras, masks, r.q, tracker.scales)
+                        if video is None:  # written to a temporary name, renamed once released
+                            video = cv2.VideoWriter(str(out / OVERLAY_TMP), cv2.VideoWriter_fourcc(*"mp4v"),
+                                                    args.fps, (img.shape[1], img.shape[0]))
+                        video.write(img)
+    except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM (Terminated)
+        interrupted = stop
     except Kms2pinError:
         done = f"up to frame {numbers[len(qs) - 1]}" if qs else "empty (no frame tracked)"
         print(f"kms2pin track: stopped at frame {numbers[len(qs)]}; outputs in {out} are {done}", file=sys.stderr)
@@ -477,16 +484,20 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if video is not None:
             video.release()
+            if (out / OVERLAY_TMP).exists():
+                os.replace(out / OVERLAY_TMP, out / "overlay.mp4")
         if qs:
-            Trajectory(robot, np.array(qs), results, scales=tracker.scales).to_npz(out / "poses.npz")
+            with replaced(out / "poses.npz") as tmp:
+                Trajectory(robot, np.array(qs), results, scales=tracker.scales).to_npz(tmp)
     if interrupted:
         print(f"interrupted after {len(qs)} frame(s); outputs in {out} are complete up to there", file=sys.stderr)
-        raise KeyboardInterrupt
+        raise interrupted
     if video_mode:
         from ..video.track_video import plot_joint_angles
 
         try:
-            plot_joint_angles(robot, np.array(qs), out / "joint_angles.png", frames=numbers[: len(qs)])
+            with replaced(out / "joint_angles.png") as tmp:
+                plot_joint_angles(robot, np.array(qs), tmp, frames=numbers[: len(qs)])
         except Exception as err:  # noqa: BLE001 - the plot is a convenience
             print(f"note: joint_angles.png skipped ({err})", file=sys.stderr)
     try:
@@ -495,12 +506,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: animation.html skipped (viewer unavailable: {err})", file=sys.stderr)
     else:
         try:
-            write_animation_html(robot, np.array(qs), args.fps, out / "animation.html")
+            with replaced(out / "animation.html") as tmp:
+                write_animation_html(robot, np.array(qs), args.fps, tmp)
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
     meta["complete"] = True
     try:
-        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_files_atomically({out / "meta.json": json.dumps(meta, indent=2) + "\n"})
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
     fits = np.array([r.fit for r in results])
