@@ -240,3 +240,72 @@ def test_a_large_jpeg_is_refused_from_its_header_too(tmp_path):
     cv2.imwrite(str(path), np.zeros((8, 8200, 3), np.uint8))
     with pytest.raises(InputDataError, match=r"wide.jpg: the image is 8200x8 pixels; at most 8192"):
         read_image(path)
+
+
+# ----------------------------------------------------------------------------- trajectories and poses
+
+
+@pytest.fixture(scope="module")
+def truth_csv(tmp_path_factory):
+    d = tmp_path_factory.mktemp("truth")
+    assert main(["synth", str(SPECS / "lowerbody.kms"), "--frames", "2", "-o", str(d)]) == 0
+    return d / "truth.csv"
+
+
+@pytest.mark.parametrize("cells, message", [
+    (dict(root_qx="0", root_qy="0", root_qz="0", root_qw="0"),
+     "the root quaternion (root_qx, root_qy, root_qz, root_qw) is zero"),
+    (dict(root_x="1e308"), "root position (root_x, root_y, root_z) must be within +-1e+06, got [1e+308, "),
+])
+def test_a_trajectory_with_an_unusable_root_is_refused_with_its_line(truth_csv, tmp_path, cells, message):
+    from conftest import set_csv_cell
+
+    from kms2pin.ecm import Trajectory
+    from kms2pin.errors import InputDataError
+    from kms2pin.robot import load
+
+    path = tmp_path / "t.csv"
+    path.write_text(truth_csv.read_text())
+    for column, value in cells.items():
+        set_csv_cell(path, 3, column, value)
+    with pytest.raises(InputDataError) as err:
+        Trajectory.from_csv(load(SPECS / "lowerbody.kms", root="free"), path)
+    assert str(err.value).startswith(f"{path}:3: {message}")
+
+
+def test_a_trajectory_quaternion_of_any_size_is_normalized(truth_csv, tmp_path):
+    from conftest import set_csv_cell
+
+    from kms2pin.ecm import Trajectory
+    from kms2pin.robot import load
+
+    robot = load(SPECS / "lowerbody.kms", root="free")
+    path = tmp_path / "t.csv"
+    path.write_text(truth_csv.read_text())
+    for column, value in dict(root_qx="0", root_qy="3e300", root_qz="0", root_qw="4e300").items():
+        set_csv_cell(path, 2, column, value)
+    q = Trajectory.from_csv(robot, path).q[0]
+    np.testing.assert_allclose(q[3:7], [0, 0.6, 0, 0.8])
+
+
+@pytest.mark.parametrize("root, message", [
+    ({"rotation": [[1.3e154, 0, 0], [0, 1, 0], [0, 0, 1]]}, "root rotation is not a rotation matrix"),
+    ({"rotation": [None, [0, 1, 0], [0, 0, 1]]}, "root rotation must be a 3x3 matrix"),
+    ({"position": [0, 0, 1e308]}, "root position must be within +-1e+06"),
+    ({"quaternion_xyzw": [0, 0, 0, 2**70]}, None),
+    ({"quaternion_xyzw": [0, 0, 0, 10**400]}, "quaternion_xyzw must be [x, y, z, w]"),
+])
+def test_pose_files_with_absurd_roots(tmp_path, root, message):
+    from kms2pin.errors import InputDataError
+    from kms2pin.robot import load
+    from kms2pin.video.init import read_pose_json
+
+    robot = load(SPECS / "lowerbody.kms", root="free")
+    path = tmp_path / "pose.json"
+    path.write_text(json.dumps({"root": root}).replace("Infinity", "1e400"))
+    if message is None:
+        np.testing.assert_allclose(read_pose_json(robot, path)[3:7], [0, 0, 0, 1])
+        return
+    with pytest.raises(InputDataError) as err:
+        read_pose_json(robot, path)
+    assert str(err.value).startswith(f"{path}: {message}")

@@ -37,11 +37,12 @@ import pinocchio as pin
 
 from kms2pin.errors import CameraError, did_you_mean
 from kms2pin.jsonfile import read_json
+from kms2pin.lang.semantics import MAX_LENGTH
 from kms2pin.robot import rotation_error
 from kms2pin.userfile import MAX_IMAGE_SIDE
 
 ROTATION_TOL = 1e-6
-MAX_COORDINATE = 1e6  # |translation|, |cx|, |cy|, |dist| and fx, fy at most this
+MAX_COORDINATE = MAX_LENGTH  # 1e6: |translation| (the spec's lengths' range), |cx|, |cy|, |dist|, fx, fy at most
 MIN_FOCAL = 1e-3  # fx, fy at least this (pixels)
 DIST_LENGTHS = (4, 5, 8, 12, 14)
 FIELDS = ("name", "width", "height", "K", "world_T_camera", "dist")

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputDataError
+from ..lang.semantics import MAX_LENGTH
 from ..robot import Robot
 from ..userfile import MAX_DATA_BYTES, read_user_file
 
@@ -242,11 +243,30 @@ class Trajectory:
         if short < len(body):
             line, row = body[short]
             raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
+        if robot.root == "free":
+            _check_root(q, [line for line, _ in body], cols, path)
         for jid in range(1, robot.model.njoints):
             j = robot.model.joints[jid]
             if j.nq == 1:
                 q[:, j.idx_q] = np.radians(q[:, j.idx_q])
         return cls(robot, q)
+
+
+def _check_root(q: np.ndarray, lines: list[int], cols: list[str], path) -> None:
+    """A free root's rows of a CSV: position within +-MAX_LENGTH, quaternion not zero;
+    the quaternions are normalized in place (as Robot's methods take them)."""
+    far = np.flatnonzero(np.abs(q[:, :3]).max(axis=1, initial=0) > MAX_LENGTH)
+    if len(far):
+        k = far[0]
+        raise InputDataError(f"{path}:{lines[k]}: root position ({', '.join(cols[:3])}) must be within "
+                             f"+-{MAX_LENGTH:g}, got {q[k, :3].tolist()}")
+    quat = q[:, 3:7]
+    scale = np.abs(quat).max(axis=1, initial=0)
+    zero = np.flatnonzero(scale == 0)
+    if len(zero):
+        raise InputDataError(f"{path}:{lines[zero[0]]}: the root quaternion ({', '.join(cols[3:7])}) is zero")
+    quat /= scale[:, None]  # scaled first, so that huge or tiny values do not overflow
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
 
 
 class TrajectoryCsvWriter:

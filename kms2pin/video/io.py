@@ -30,7 +30,6 @@ import re
 import select
 import signal
 import subprocess
-import sys
 import tempfile
 import warnings
 from collections.abc import Iterator
@@ -39,6 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .._child import helper_command
 from ..errors import InputDataError
 from ..userfile import MAX_IMAGE_SIDE, read_user_file
 from . import _decoder
@@ -125,8 +125,6 @@ def read_image(path: str | os.PathLike, flags: int = cv2.IMREAD_COLOR) -> np.nda
 # ---------------------------------------------------------------- videos, decoded in a child process
 
 STALL_TIMEOUT = 120.0  # seconds without a byte from the decoder: it is taken to hang
-_BOOT = ("import json, runpy, sys; sys.path[:0] = json.loads(sys.argv[1]); "
-         "sys.exit(runpy.run_path(sys.argv[2])['main'](sys.argv[3:]))")
 
 
 class _DecoderStopped(Exception):
@@ -139,9 +137,7 @@ class _Decoder:
 
     def __init__(self, path: Path, mode: str):
         self.path = path
-        # -I: no user site, no environment, no current folder on sys.path (a cv2.py there); ours is passed
-        cmd = [sys.executable, "-I", "-c", _BOOT, json.dumps([p for p in sys.path if p]), _decoder.__file__,
-               mode, os.fspath(path)]
+        cmd = helper_command(_decoder.__file__, mode, os.fspath(path))
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                      stderr=subprocess.DEVNULL, bufsize=0)
         try:  # a frame in one pipe buffer, not 64 KiB at a time (Linux; 1 MiB is the default maximum)
