@@ -58,6 +58,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except IsADirectoryError as err:
         print(f"kms2pin {args.command}: error: {err.filename}: is a directory", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # e.g. `kms2pin check --json x | head`
+        sys.stderr.close()
+        return EXIT_OK
     except OSError as err:  # an input file named on the command line cannot be read (outputs say "cannot write")
         where = f"{err.filename}: " if err.filename else ""
         print(f"kms2pin {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
@@ -65,9 +68,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Kms2pinError as err:
         print(str(err), file=sys.stderr)
         return EXIT_MODEL
-    except BrokenPipeError:  # e.g. `kms2pin check --json x | head`
-        sys.stderr.close()
-        return EXIT_OK
     except Terminated:
         print(f"kms2pin {args.command}: terminated (SIGTERM)", file=sys.stderr)
         return EXIT_TERMINATED

@@ -309,3 +309,32 @@ def test_pose_files_with_absurd_roots(tmp_path, root, message):
     with pytest.raises(InputDataError) as err:
         read_pose_json(robot, path)
     assert str(err.value).startswith(f"{path}: {message}")
+
+
+def test_a_fifo_among_the_masks_is_refused_at_once(tmp_path):
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    (masks / "cameras.json").write_text(json.dumps([CAMERA]))
+    cv2.imwrite(str(masks / "frame_00000.png"), np.zeros((48, 64), np.uint8))
+    os.mkfifo(masks / "frame_00001.png")  # reading its header would block forever
+    r = run_process(["track", SPECS / "lowerbody.kms", "--masks", masks, "-o", tmp_path / "out", "--no-progress"])
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines()[-1] == f"{masks / 'frame_00001.png'}: not a regular file"
+
+
+def test_a_closed_pipe_on_stdout_ends_quietly(monkeypatch):
+    class ClosedPipe:
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")  # `kms2pin check x | head` once head has exited
+
+        def flush(self):
+            pass
+
+    import io
+
+    err = io.StringIO()
+    err.close = lambda: None  # the handler closes stderr (no "Exception ignored" at exit); keep it readable
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    monkeypatch.setattr(sys, "stderr", err)
+    assert main(["check", str(SPECS / "fullbody.kms")]) == 0
+    assert err.getvalue() == ""  # not "error: Broken pipe" (it is an OSError, caught before those)

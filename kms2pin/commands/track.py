@@ -188,6 +188,8 @@ def check_masks(per_cam: list[dict[int, Path]], numbers: list[int], cameras: lis
 def _frames_in(folder: Path) -> dict[int, Path]:
     frames: dict[int, Path] = {}
     for path in sorted(folder.glob("*.png")) + sorted(folder.glob("*.PNG")):
+        if not path.is_file():  # a FIFO would block the header check, a device never end
+            raise InputDataError(f"{path}: not a regular file")
         m = _NUM.search(path.name)
         if m is None:
             raise InputDataError(f"{path}: cannot tell the frame number from the name (expected frame_NNNNN.png)")
@@ -236,10 +238,7 @@ def _size_error(path: Path, frame: int, width: int, height: int, camera: Camera)
 
 
 def read_mask(path: Path, frame: int, camera: Camera) -> np.ndarray:
-    try:
-        img = decode_image(path)  # refuses an image over 8192 pixels a side before decoding it
-    except InputDataError as err:
-        raise InputDataError(f"{path}: frame {frame}: cannot read the image ({err.args[0].split(': ', 1)[-1]})") from None
+    img = decode_image(path, where=f"{path}: frame {frame}")  # refuses over 8192 pixels a side before decoding
     if img.ndim == 3:
         img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
     if img.shape != camera.shape:

@@ -69,8 +69,8 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
 MAX_IMAGE_BYTES = 512 * 2**20  # an image file: 512 MiB (8192 x 8192 pixels of 16-bit RGBA, uncompressed)
 
 
-def _too_large(path: Path, width: int, height: int, what: str = "image") -> InputDataError:
-    return InputDataError(f"{path}: the {what} is {width}x{height} pixels; at most {MAX_IMAGE_SIDE} pixels a side "
+def _too_large(where: Path | str, width: int, height: int, what: str = "image") -> InputDataError:
+    return InputDataError(f"{where}: the {what} is {width}x{height} pixels; at most {MAX_IMAGE_SIDE} pixels a side "
                           "are supported (scale it down first)")
 
 
@@ -91,26 +91,28 @@ def _header_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
-def decode_image(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
+def decode_image(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED, where: str | None = None) -> np.ndarray:
     """``cv2.imdecode`` of the file ``path`` (a regular file; at most
     :data:`~kms2pin.userfile.MAX_IMAGE_SIDE` pixels a side, checked from the header
     before decoding where it tells).  A missing file raises FileNotFoundError, an
-    unreadable, undecodable or too large one InputDataError."""
+    unreadable, undecodable or too large one InputDataError starting with ``where``
+    (default: the path)."""
     path = Path(path)
+    where = str(path) if where is None else where
     if not path.exists():
         raise FileNotFoundError(2, "no such file", str(path))
     try:
         data = read_user_file(path, MAX_IMAGE_BYTES)
     except OSError as e:
-        raise InputDataError(f"{path}: cannot read image: {e.strerror or e}") from None
+        raise InputDataError(f"{where}: cannot read image: {e.strerror or e}") from None
     size = _header_size(data)
     if size is not None and max(size) > MAX_IMAGE_SIDE:
-        raise _too_large(path, *size)
+        raise _too_large(where, *size)
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
     if img is None:
-        raise InputDataError(f"{path}: not a readable image (empty, truncated or unknown format)")
+        raise InputDataError(f"{where}: not a readable image (empty, truncated or unknown format)")
     if max(img.shape[:2]) > MAX_IMAGE_SIDE:
-        raise _too_large(path, img.shape[1], img.shape[0])
+        raise _too_large(where, img.shape[1], img.shape[0])
     return img
 
 

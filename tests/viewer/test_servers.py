@@ -163,6 +163,7 @@ def test_meshcat_answers_only_its_own_address(control):
     url = urlsplit(control.meshcat_url)
     mport = url.port
     assert listening_addresses(mport) == {"127.0.0.1"}
+    assert listening_addresses(urlsplit(control.vis.window.zmq_url).port) == {"127.0.0.1"}  # its command socket
     assert request(mport, f"GET /static/ HTTP/1.1\nHost: 127.0.0.1:{mport}")[0] == 200
     assert request(mport, f"GET /static/ HTTP/1.1\nHost: attacker.example:{mport}")[0] == 403
     upgrade = (f"GET / HTTP/1.1\nHost: 127.0.0.1:{mport}\nUpgrade: websocket\nConnection: Upgrade\n"
