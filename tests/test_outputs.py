@@ -179,3 +179,18 @@ def test_sigterm_or_ctrl_c_during_track_leave_complete_outputs(masks, tmp_path, 
         count += 1
     assert count == n
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []  # no lock, no temporary file
+
+
+def test_a_file_system_without_locks_is_written_with_a_note(tmp_path, monkeypatch, capsys):
+    import errno
+    import fcntl
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)  # as on some network file systems
+    assert main(["export", str(LOWER), "-o", str(tmp_path / "out")]) == 0
+    assert capsys.readouterr().err.strip() == (f"note: {tmp_path / 'out'}: this file system does not lock files "
+                                               f"({os.strerror(errno.ENOLCK)}); a second run into this folder will "
+                                               "not be refused")
+    assert not (tmp_path / "out" / LOCK_NAME).exists()

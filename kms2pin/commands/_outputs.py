@@ -104,9 +104,13 @@ def _lock(path: Path) -> tuple[int, str]:
             os.close(fd)
             raise OutputError(f"{path.parent}: {holder} is writing to this folder; wait for it to end or choose "
                               "another output folder") from None
-        except OSError:
-            os.close(fd)
-            raise
+        except OSError as err:
+            if err.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                os.close(fd)
+                raise
+            print(f"note: {path.parent}: this file system does not lock files ({err.strerror}); a second run "
+                  "into this folder will not be refused", file=sys.stderr)
+            return fd, ""
         try:
             same = os.fstat(fd).st_ino == os.stat(path).st_ino
         except FileNotFoundError:
