@@ -1,7 +1,9 @@
 """``kms2pin`` command line: one sub-command per module in :mod:`kms2pin.commands`.
 
 Exit status: 0 success, 1 a model/data error (reported compiler-style on stderr),
-2 a usage error (bad arguments, missing input file).
+2 a usage error (bad arguments, missing or unreadable input file), 130 interrupted
+(Ctrl-C), 143 terminated (SIGTERM); interrupted or terminated, a command's outputs
+are complete up to where it stopped.
 """
 
 from __future__ import annotations
@@ -13,10 +15,13 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__, commands
+from .commands._outputs import Terminated, sigterm_as_interrupt
 from .errors import Kms2pinError, UsageError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
-__all__ = ["EXIT_MODEL", "EXIT_OK", "EXIT_USAGE", "UsageError", "build_parser", "main"]
+EXIT_INTERRUPTED, EXIT_TERMINATED = 130, 143  # 128 + SIGINT, 128 + SIGTERM, as a shell reports them
+__all__ = ["EXIT_INTERRUPTED", "EXIT_MODEL", "EXIT_OK", "EXIT_TERMINATED", "EXIT_USAGE", "UsageError", "build_parser",
+           "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,7 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args._run(args) or 0)
+        with sigterm_as_interrupt():
+            return int(args._run(args) or 0)
     except UsageError as err:
         print(f"kms2pin {args.command}: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -50,15 +56,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except IsADirectoryError as err:
         print(f"kms2pin {args.command}: error: {err.filename}: is a directory", file=sys.stderr)
         return EXIT_USAGE
-    except Kms2pinError as err:
-        print(str(err), file=sys.stderr)
-        return EXIT_MODEL
     except BrokenPipeError:  # e.g. `kms2pin check --json x | head`
         sys.stderr.close()
         return EXIT_OK
+    except OSError as err:  # an input file named on the command line cannot be read (outputs say "cannot write")
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"kms2pin {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
+        return EXIT_USAGE if err.filename else EXIT_MODEL
+    except Kms2pinError as err:
+        print(str(err), file=sys.stderr)
+        return EXIT_MODEL
+    except Terminated:
+        print(f"kms2pin {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print(f"kms2pin {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

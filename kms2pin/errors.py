@@ -12,8 +12,35 @@ command line can report every mistake of a file in one run, compiler-style::
 from __future__ import annotations
 
 import difflib
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+
+SHOWN_LINE = 100  # characters of a source line shown around the caret
+SHOWN_NAME = 60  # characters of a quoted name shown in a message
+_QUOTED = re.compile(r"'([^'\n]{" + str(SHOWN_NAME + 1) + r",})'")
+
+
+def excerpt(line: str, column: int) -> tuple[str, int]:
+    """``line`` (tabs expanded to 4) cut to about :data:`SHOWN_LINE` characters around
+    the 1-based ``column``, with ``...`` where it was cut, and the caret's 0-based offset in it."""
+    at = len(line[: max(column, 1) - 1].expandtabs(4))
+    text = line.expandtabs(4)
+    if len(text) <= SHOWN_LINE:
+        return text, at
+    start = min(max(at - SHOWN_LINE // 2, 0), len(text) - SHOWN_LINE)
+    cut = text[start : start + SHOWN_LINE]
+    if start > 0:
+        cut, at = "..." + cut, at - start + 3
+    if start + SHOWN_LINE < len(text):
+        cut += "..."
+    return cut, at
+
+
+def shorten_quoted(message: str) -> str:
+    """``message`` with every quoted name longer than :data:`SHOWN_NAME` characters cut in its middle."""
+    half = SHOWN_NAME // 2
+    return _QUOTED.sub(lambda m: f"'{m[1][:half]}...{m[1][-half // 2:]}'", message)
 
 
 class Kms2pinError(Exception):
@@ -36,12 +63,11 @@ class Diagnostic:
     severity: str = "error"
 
     def format(self) -> str:
-        head = f"{self.path}:{self.line}:{self.column}: {self.severity}: {self.message}"
+        head = f"{self.path}:{self.line}:{self.column}: {self.severity}: {shorten_quoted(self.message)}"
         if not self.source_line:
             return head
-        text = self.source_line.rstrip("\n").expandtabs(4)
-        caret = " " * (max(self.column, 1) - 1) + "^"
-        return f"{head}\n    {text}\n    {caret}"
+        text, at = excerpt(self.source_line.rstrip("\n"), self.column)
+        return f"{head}\n    {text}\n    {' ' * at}^"
 
 
 class SpecError(Kms2pinError):
@@ -61,6 +87,10 @@ class SpecError(Kms2pinError):
 
 class ExportError(Kms2pinError):
     """Writing URDF/SRDF/meshes failed (e.g. the output directory is not writable)."""
+
+
+class OutputError(Kms2pinError):
+    """An output folder cannot be used: another run is writing to it, or it cannot be created."""
 
 
 class RobotError(Kms2pinError, ValueError):

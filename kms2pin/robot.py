@@ -329,8 +329,11 @@ def euler_parameters(R: np.ndarray, convention: str = "positive") -> np.ndarray:
 def rotation_error(R: np.ndarray) -> tuple[float, float]:
     """How far a finite 3 x 3 matrix ``R`` is from a rotation: (the largest entry of
     |R R^T - I|, det R).  A rotation gives (0, 1) up to rounding; each caller applies its
-    own tolerance (a reflection is orthogonal with det -1)."""
+    own tolerance (a reflection is orthogonal with det -1).  A matrix with an entry
+    beyond 2 in magnitude, which no rotation has, gives (inf, nan) (R R^T could overflow)."""
     R = np.asarray(R, dtype=float)
+    if not np.abs(R).max() <= 2.0:
+        return math.inf, math.nan
     return float(np.abs(R @ R.T - np.eye(3)).max()), float(np.linalg.det(R))
 
 

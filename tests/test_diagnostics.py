@@ -98,11 +98,7 @@ def only(text: str, message: str, needle: str, nth: int = 0, exact: bool = True,
     assert (d.line, d.column) == where(text, needle, nth)
     assert d.path == "walker.kms"
     assert d.source_line == text.splitlines()[d.line - 1]
-    report = [
-        f"{{path}}:{d.line}:{d.column}: error: {d.message}",
-        "    " + d.source_line,
-        "    " + " " * (d.column - 1) + "^",
-    ]
+    report = [f"{{path}}:{d.line}:{d.column}: error: {d.message}", *shown(d.source_line, d.column)]
     if call:
         line, col = where(text, call + "(")
         source = text.splitlines()[line - 1]
@@ -114,6 +110,17 @@ def only(text: str, message: str, needle: str, nth: int = 0, exact: bool = True,
         ]
     assert cli_report(text) == report
     return d
+
+
+def shown(source: str, column: int) -> list[str]:
+    """The two lines a report shows for ``source`` and ``column``: the whole line and a
+    caret, or for a line over 100 characters, 100 of them around the caret, "..."
+    marking each cut end."""
+    if len(source) <= 100:
+        return ["    " + source, "    " + " " * (column - 1) + "^"]
+    start = min(max(column - 1 - 50, 0), len(source) - 100)
+    text = ("..." if start else "") + source[start : start + 100] + ("..." if start + 100 < len(source) else "")
+    return ["    " + text, "    " + " " * (column - 1 - start + (3 if start else 0)) + "^"]
 
 
 def cli_report(text: str) -> list[str]:

@@ -175,7 +175,7 @@ def test_track_missing_frame_and_unreadable(tmp_path, cams2, capsys):
     cv2.imwrite(str(masks / "cam1" / "frame_00002.png"), np.zeros((240, 320), np.uint8))
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err
-    assert "frame_00002.png: frame 2: cannot read" in err
+    assert "frame_00002.png: frame 2: not a readable image" in err
 
 
 def test_track_non_binary_and_empty(tmp_path, cams2, capsys):
@@ -347,7 +347,7 @@ def test_a_damaged_mask_stops_the_track_with_its_outputs_complete_up_to_there(tm
     out = tmp_path / "o"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 1
     err = capsys.readouterr().err
-    assert "frame_00004.png: frame 4: cannot read the image" in err
+    assert "frame_00004.png: frame 4: not a readable image (empty, truncated or unknown format)" in err
     assert f"stopped at frame 4; outputs in {out} are up to frame 3" in err
     assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 4
     with np.load(out / "poses.npz") as z:

@@ -1,18 +1,24 @@
-"""Fuzzing the compiler: whatever the text, it raises SpecError or succeeds.
+"""Fuzzing what a user can give: whatever the input, one error type or success.
 
 Random text, random soups of the language's tokens and random mutations of the
 four thesis specs go through ``kms2pin.parse_text`` and ``kms2pin.load`` (which
 also writes the URDF and builds the Pinocchio model).  The only exception allowed
 is :class:`kms2pin.SpecError`; when a mutated spec compiles, loading it and
-evaluating its rest pose must work too.
+evaluating its rest pose must work too.  Camera files, pose files and trajectory
+CSVs (mutated valid ones, random JSON, random bytes) raise only CameraError or
+InputDataError, and what they accept is finite and usable.  The joint-control
+page, sent any request, answers without a traceback and stays up.
 
 KMS2PIN_FUZZ_SCALE=10 multiplies the number of examples (for a longer bug hunt).
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
+import socket
 import warnings
 
 import numpy as np
@@ -22,6 +28,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import kms2pin
+from kms2pin.ecm import Camera
 from kms2pin.lang import looks_like_path
 
 SCALE = float(os.environ.get("KMS2PIN_FUZZ_SCALE", "1"))
@@ -232,6 +239,8 @@ def test_pathological_inputs_are_spec_errors(snippet):
 
 
 TOO_LARGE = r"innerLam semi-axes must be at most 1e\+06, got \(1e\+300, 1, 1\)"
+TOO_SMALL = r"innerLam semi-axes must be at least 1e-06, got \(1e-300, 1, 1\)"
+FAR = r"pos coordinates of 'a' of body 'b' must be within \+-1e\+06, got \(1e\+300, 0, 0\)"
 ZERO_ORIENT = r"orient vector of 'a' of body 'b' is zero; a bound vector needs a direction"
 
 
@@ -239,10 +248,12 @@ ZERO_ORIENT = r"orient vector of 'a' of body 'b' is zero; a bound vector needs a
     "inner, outer, pos, orient, angle, refused",
     [
         ("1e300, 1, 1", "1e300, 2, 2", "0, 0, 0", "1, 0, 0", "0", TOO_LARGE),
-        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0", None),
+        ("1, 1, 1", "2, 2, 2", "1e300, 0, 0", "1, 0, 0", "0", FAR),
+        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "1, 0, 0", "0", TOO_SMALL),
+        ("1e-6, 1e-6, 1e6", "1e-6, 1e6, 1e6", "1e6, -1e6, 1e6", "1, 0, 0", "0", None),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e300, 1e300, 1", "0", None),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1e-300, 0, 0", "0", ZERO_ORIENT),
-        ("1e-300, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0", ZERO_ORIENT),
+        ("1e-6, 1, 1", "1, 2, 2", "0, 0, 0", "0, 0, 1e-320", "0", ZERO_ORIENT),
         ("1, 1, 1", "2, 2, 2", "0, 0, 0", "1, 0, 0", "1e18", None),
         ("1, 1, 1", "1, 1, 1", "0, 0, 0", "-1, 0, 0", "-1e300", None),
     ],
@@ -270,7 +281,230 @@ def test_extreme_but_legal_numbers_compile_and_load_or_are_refused_with_a_clear_
     v /= np.abs(v).max()  # scaled first: the norm of (1e300, 1e300, 1) overflows
     np.testing.assert_allclose(o, v / np.linalg.norm(v), rtol=0, atol=1e-15)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("error")  # the accepted ranges load without a NumPy warning
         robot = kms2pin.load(text)
         poses = robot.body_poses(robot.q_rest)
     assert all(np.isfinite(P.homogeneous).all() for P in poses)
+
+
+# ----------------------------------------------------------------------------- the other files a user gives
+# Camera files, pose files and trajectory CSVs: whatever they hold, reading them raises the
+# layer's one error type (CameraError, InputDataError) or gives finite, usable values.
+
+JSON_LEAVES = (st.none() | st.booleans() | st.integers(-(2**70), 2**70) | st.floats(allow_nan=True)
+               | st.text(max_size=8) | st.sampled_from([0, -1, 1e-300, 1e308, 8192, 8193, -0.0, 2**63]))
+JSON_VALUES = st.recursive(JSON_LEAVES, lambda inner: st.lists(inner, max_size=4)
+                           | st.dictionaries(st.text(max_size=6), inner, max_size=4), max_leaves=12)
+CAMERA = {"name": "c", "width": 64, "height": 48, "K": [[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]],
+          "world_T_camera": {"rotation": [[-1, 0, 0], [0, -1, 0], [0, 0, 1]], "translation": [0, 0, -3]},
+          "dist": [0.01, 0, 0, 0]}
+
+
+def _paths(value, prefix=()):
+    """Every place in a JSON value (a tuple of keys and indices), the value itself first."""
+    yield prefix
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        yield from _paths(v, (*prefix, k))
+
+
+@st.composite
+def mutated_json(draw, valid):
+    """``valid`` with one to three places replaced by random JSON (or deleted), or random JSON."""
+    if draw(st.integers(0, 9)) == 0:
+        return draw(JSON_VALUES)
+    value = json.loads(json.dumps(valid))
+    for _ in range(draw(st.integers(1, 3))):
+        path = draw(st.sampled_from(list(_paths(value))))
+        if not path:
+            return draw(JSON_VALUES)
+        parent = value
+        for k in path[:-1]:
+            parent = parent[k]
+        if isinstance(parent, dict) and draw(st.booleans()):
+            del parent[path[-1]]
+        else:
+            parent[path[-1]] = draw(JSON_VALUES)
+    return value
+
+
+def _write(tmp_path_factory, text: str | bytes, suffix: str):
+    path = tmp_path_factory.mktemp("fuzz") / f"file{suffix}"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode("utf-8", "surrogatepass"))
+    return path
+
+
+@settings(max_examples=_n(300), **SETTINGS)
+@given(mutated_json(CAMERA) | mutated_json([CAMERA, CAMERA]))
+def test_camera_files_raise_only_camera_error(tmp_path_factory, value):
+    path = _write(tmp_path_factory, json.dumps(value), ".json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a camera that is accepted works without NumPy warnings
+        try:
+            cameras = Camera.list_from_json(path)
+        except kms2pin.CameraError as err:
+            assert str(err).startswith(str(path)), err
+            return
+        for cam in cameras:
+            px = cam.project(np.array([[0.1, 0.2, 1.0], [0.0, 0.0, 5.0]]))
+            assert np.isfinite(px).all() or np.isnan(px).any()
+            assert 1 <= cam.width <= 8192 and 1 <= cam.height <= 8192
+
+
+@settings(max_examples=_n(100), **SETTINGS)
+@given(st.binary(max_size=300) | st.text(max_size=300).map(lambda t: t.encode("utf-8", "surrogatepass")))
+def test_camera_files_of_random_bytes_raise_only_camera_error(tmp_path_factory, data):
+    path = _write(tmp_path_factory, data, ".json")
+    try:
+        Camera.list_from_json(path)
+    except kms2pin.CameraError:
+        pass
+
+
+POSE = {"joints": {"leftThigh_hip": 70, "leftShin_knee": 30},
+        "root": {"position": [0, 0, 8], "quaternion_xyzw": [0, 0, 0, 1]}}
+POSE_ROTATION = {"root": {"position": [0.5, 0, 8], "rotation": [[1, 0, 0], [0, 0, -1], [0, 1, 0]]}}
+
+
+@pytest.fixture(scope="module")
+def walker():
+    return kms2pin.load(SPECS / "lowerbody.kms", root="free")
+
+
+@settings(max_examples=_n(300), **SETTINGS)
+@given(value=mutated_json(POSE) | mutated_json(POSE_ROTATION))
+def test_pose_files_raise_only_input_data_error(tmp_path_factory, walker, value):
+    from kms2pin.video.init import read_pose_json
+
+    path = _write(tmp_path_factory, json.dumps(value), ".json")
+    try:
+        q = read_pose_json(walker, path)
+    except kms2pin.InputDataError as err:
+        assert str(err).startswith(str(path)), err
+        return
+    assert q.shape == (walker.nq,) and np.isfinite(q).all()
+    assert abs(np.linalg.norm(q[3:7]) - 1) < 1e-9
+    assert np.isfinite(walker.maximal_coordinates(q)).all()
+
+
+CSV_CELLS = st.sampled_from(["0", "1.5", "-90", "1e308", "-1e308", "1e999", "nan", "inf", "", " ", "x", '"',
+                             "0x10", "1,2", "\x00", "١٢", "1e-320"]) | st.floats(allow_nan=True).map(repr)
+
+
+@st.composite
+def trajectory_csv(draw, columns) -> str:
+    header = list(columns)
+    if draw(st.booleans()):
+        header = draw(st.permutations(header))
+    if draw(st.integers(0, 4)) == 0:
+        header = draw(st.lists(st.sampled_from([*columns, "frame", "x", ""]), max_size=len(columns) + 2))
+    rows = draw(st.lists(st.lists(CSV_CELLS, min_size=max(len(header) - 1, 0), max_size=len(header) + 1), max_size=4))
+    sep = draw(st.sampled_from(["\n", "\r\n", "\r"]))
+    return sep.join(",".join(r) for r in [header, *rows]) + draw(st.sampled_from(["", sep]))
+
+
+@settings(max_examples=_n(300), **SETTINGS)
+@given(st.data())
+def test_trajectory_csvs_raise_only_input_data_error(tmp_path_factory, walker, data):
+    from kms2pin.ecm import Trajectory
+
+    columns = Trajectory.columns(walker)
+    text = data.draw(trajectory_csv(columns) | st.text(max_size=200))
+    path = _write(tmp_path_factory, text, ".csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            traj = Trajectory.from_csv(walker, path)
+        except kms2pin.InputDataError as err:
+            assert str(err).startswith(str(path)), err
+            return
+        assert np.isfinite(traj.q).all()
+        for q in traj.q:
+            assert abs(np.linalg.norm(q[3:7]) - 1) < 1e-9
+            assert np.isfinite(walker.maximal_coordinates(q)).all()
+
+
+# ----------------------------------------------------------------------------- the joint-control page
+# Whatever arrives on its socket, the page answers with a status and JSON (or the standard
+# library's error page for a broken request line), prints no traceback, and stays up.
+
+
+@pytest.fixture(scope="module")
+def control_page():
+    from kms2pin.viewer import JointControl
+
+    ctl = JointControl(kms2pin.load(SPECS / "lowerbody.kms"))
+    try:
+        yield ctl
+    finally:
+        ctl.close()
+
+
+def _exchange(port: int, raw: bytes) -> bytes:
+    """Send ``raw``, close our side, and return the answer: b"" when the server, having
+    refused the request early, closed the connection with data of it unread (a reset)."""
+    data = b""
+    with socket.create_connection(("127.0.0.1", port), timeout=20) as s:
+        try:
+            s.sendall(raw)
+            s.shutdown(socket.SHUT_WR)  # everything is sent: the server sees the end of it
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            pass  # already answered and closed
+        try:
+            while chunk := s.recv(65536):
+                data += chunk
+        except ConnectionResetError:
+            pass
+    return data
+
+
+HEADER_LINES = st.sampled_from([
+    "Content-Type: application/json", "Content-Length: -1", "Content-Length: 99999999", "Content-Length: x",
+    "Content-Length: 3", "Content-Length: 0", "Transfer-Encoding: chunked", "Origin: http://attacker.example",
+    "Origin: null", "Host: attacker.example", "Host: ", "Connection: keep-alive", "Expect: 100-continue",
+])
+BODIES = (JSON_VALUES.map(lambda v: json.dumps(v).encode())
+          | st.fixed_dictionaries({"name": st.sampled_from(["leftShin_knee", "rightThigh_hip", "x"]) | JSON_LEAVES,
+                                   "deg": JSON_LEAVES}).map(lambda v: json.dumps(v).encode())
+          | st.builds(lambda d: json.dumps({"pose": d}).encode(), st.text(max_size=40) | JSON_LEAVES)
+          | st.builds(lambda d: json.dumps({"view": d}).encode(), st.sampled_from(["front", "side", "sid"]) | JSON_LEAVES)
+          | st.binary(max_size=200)
+          | st.integers(1, 40000).map(lambda n: b"[" * n + b"]" * n))
+
+
+# capfd is read (and so emptied) by every example
+HTTP_SETTINGS = {**SETTINGS, "suppress_health_check": [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]}
+
+
+@settings(max_examples=_n(200), **HTTP_SETTINGS)
+@given(method=st.sampled_from(["GET", "POST", "PUT", "DELETE", "HEAD"]),
+       path=st.sampled_from(["/", "/state", "/joint", "/pose", "/reset", "/camera", "/x", "/joint?x=1", "//"]),
+       headers=st.lists(HEADER_LINES, max_size=3), body=BODIES, with_length=st.booleans())
+def test_the_joint_control_page_survives_any_request(control_page, capfd, method, path, headers, body, with_length):
+    port = int(control_page.url.rsplit(":", 1)[1].strip("/"))
+    lines = [f"{method} {path} HTTP/1.1"]
+    if not any(h.startswith("Host:") for h in headers):
+        lines.append(f"Host: 127.0.0.1:{port}")
+    if with_length and not any(h.startswith("Content-Length") for h in headers):
+        lines.append(f"Content-Length: {len(body)}")
+    raw = ("\r\n".join(lines + headers) + "\r\n\r\n").encode() + body
+    answer = _exchange(port, raw)
+    status = int(answer.split(b" ", 2)[1]) if answer else 0  # 0: refused early, the answer lost in a reset
+    assert status in (0, 200, 400, 403, 404, 408, 411, 413, 501), answer[:300]
+    if status == 200 and method == "POST":
+        state = json.loads(answer.split(b"\r\n\r\n", 1)[1])
+        assert all(math.isfinite(j["deg"]) for j in state["joints"])
+    assert np.isfinite(control_page.q).all()
+    ok = _exchange(port, f"GET /state HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+    assert ok.startswith(b"HTTP/1.0 200"), ok[:200]
+    assert "Traceback" not in capfd.readouterr().err
+
+
+@settings(max_examples=_n(60), **HTTP_SETTINGS)
+@given(st.binary(max_size=400))
+def test_the_joint_control_page_survives_random_bytes(control_page, capfd, raw):
+    port = int(control_page.url.rsplit(":", 1)[1].strip("/"))
+    _exchange(port, raw)
+    ok = _exchange(port, f"GET /state HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
+    assert ok.startswith(b"HTTP/1.0 200"), ok[:200]
+    assert "Traceback" not in capfd.readouterr().err

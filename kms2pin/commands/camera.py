@@ -22,9 +22,12 @@ import sys
 from pathlib import Path
 
 from ..errors import CameraError
+from ..userfile import MAX_IMAGE_SIDE
 from ..video.calibration import DISTORTION_MODELS, calibrate_chessboard, make_camera, with_pose
 from ..video.io import list_images
-from ._common import existing_file, number, positive, positive_count, write_outputs
+from ._common import existing_file, number, positive, write_outputs
+
+_side = number(1, MAX_IMAGE_SIDE, whole=True)
 
 NAME = "camera"
 HELP = "make a camera file from a field of view, or calibrate one from chessboard photos"
@@ -45,8 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="camera_command", metavar="ACTION", required=True)
     m = sub.add_parser("make", help="camera from image size + vertical field of view + pose",
                        description="Pinhole camera from the image size, vertical field of view and pose.")
-    m.add_argument("--width", type=positive_count, required=True, help="image width in pixels")
-    m.add_argument("--height", type=positive_count, required=True, help="image height in pixels")
+    m.add_argument("--width", type=_side, required=True, help=f"image width in pixels (1-{MAX_IMAGE_SIDE})")
+    m.add_argument("--height", type=_side, required=True, help=f"image height in pixels (1-{MAX_IMAGE_SIDE})")
     m.add_argument("--fov", type=number(0.0, 180.0, lo_open=True, hi_open=True), required=True, metavar="DEG",
                    help="vertical field of view (full image height) in degrees")
     _add_pose(m, "the world origin")

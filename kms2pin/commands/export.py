@@ -12,6 +12,7 @@ from ..mjcf import to_mjcf
 from ..robot import Robot
 from ..urdf import MESH_DIR
 from ._common import add_spec_argument, read_model, write_outputs
+from ._outputs import owns_output
 
 NAME = "export"
 HELP = "compile a spec to URDF + SRDF, or to MuJoCo's MJCF (default output folder urdf_out/)"
@@ -28,6 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="export only this rigidBodySystem")
 
 
+@owns_output
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
     systems = [spec.system(args.system)] if args.system else list(spec.systems)

@@ -42,6 +42,7 @@ from ..video.segmentation import (
     SegmentParams,
 )
 from ._common import count, lighting_notes, number, positive, positive_count
+from ._outputs import owns_output
 
 NAME = "segment"
 HELP = "video (or image folder) -> figure-ground masks by adaptive background subtraction"
@@ -90,6 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+@owns_output
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import UsageError
+from ..errors import UsageError
 from ..ecm.camera import Camera
 from ..ecm.motions import MOTIONS, make_motion
 from ..ecm.synth import SHAPES, synthesize
@@ -30,6 +30,7 @@ from ..errors import InputDataError, Kms2pinError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
 from ._common import add_spec_argument, count, existing_file, number, positive_count, read_model
+from ._outputs import owns_output, replaced
 
 NAME = "synth"
 HELP = "render synthetic silhouette masks of a moving model (for track / evaluate)"
@@ -55,6 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
+@owns_output
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
@@ -68,10 +70,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         for d in dirs:
             d.mkdir(parents=True, exist_ok=True)
-        Camera.list_to_json(cameras, out / "cameras.json")
         truth = Trajectory(robot, motion)
-        truth.to_csv(out / "truth.csv")
-        truth.to_npz(out / "truth.npz")
+        for name, write in (("cameras.json", lambda p: Camera.list_to_json(cameras, p)), ("truth.csv", truth.to_csv),
+                            ("truth.npz", truth.to_npz)):
+            with replaced(out / name) as tmp:
+                write(tmp)
         for f, masks in synthesize(robot, motion, cameras, noise=args.noise, size_mismatch=args.size_mismatch,
                                    rng=rng, shape=args.shape):
             for d, m in zip(dirs, masks):

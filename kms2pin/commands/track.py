@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shutil
 import sys
 from collections.abc import Callable
@@ -39,6 +40,7 @@ from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
 from ._common import Once, add_spec_argument, existing_file, lighting_notes, positive, read_model
+from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
 from ._tracking import add_tracker_arguments, tracker_options
 from .segment import add_lighting_arguments
 
@@ -85,6 +87,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png")
+OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
 def _remove_earlier_outputs(out: Path, cameras: int, frames: int | None = None) -> int:
@@ -235,9 +238,11 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
                  "gain_compensation": not args.no_gain_compensation}
     try:
         out.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(args.spec, out / "model.kms")
-        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
-        Camera.list_to_json(frames.cameras, out / "cameras.json")
+        with replaced(out / "model.kms") as tmp:
+            shutil.copyfile(args.spec, tmp)
+        write_files_atomically({out / "meta.json": json.dumps(meta, indent=2) + "\n"})
+        with replaced(out / "cameras.json") as tmp:
+            Camera.list_to_json(frames.cameras, tmp)
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
     return meta
@@ -265,11 +270,13 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
                     tracker, r, note = reacquire.update(tracker, r, masks, source=f"{names}: frame {frame}")
                     if note:
                         print(f"note: frame {frame}: {note}", file=sys.stderr)
-                csv_out.write(frame, r)
-                results.append(r)
-                if not args.no_video:
-                    video = _overlay_frame(video, out, args.fps, robot, frames.cameras, masks, r.q, tracker.scales)
-    except KeyboardInterrupt:
+                with interrupts_deferred():  # a frame is in every output or in none
+                    csv_out.write(frame, r)
+                    results.append(r)
+                    if not args.no_video:
+                        video = _overlay_frame(video, out, args.fps, robot, frames.cameras, masks, r.q,
+                                               tracker.scales)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (Terminated)
         print(f"interrupted after {len(results)} frame(s); outputs in {out} are complete up to there",
               file=sys.stderr)
         raise
@@ -281,19 +288,22 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
     finally:
         if video is not None:
             video.release()
+            if (out / OVERLAY_TMP).exists():
+                os.replace(out / OVERLAY_TMP, out / "overlay.mp4")
         if results:
-            Trajectory(robot, np.array([r.q for r in results]), results, scales=tracker.scales).to_npz(
-                out / "poses.npz")
+            with replaced(out / "poses.npz") as tmp:
+                Trajectory(robot, np.array([r.q for r in results]), results, scales=tracker.scales).to_npz(tmp)
     return results
 
 
 def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scales):
-    """Append one frame to OUT/overlay.mp4 (opened on the first)."""
+    """Append one frame to the overlay video (opened on the first, under a temporary name
+    that becomes OUT/overlay.mp4 once it is released)."""
     from ..viewer.overlay import overlay_image
 
     img = overlay_image(robot, cameras, masks, q, scales)
     if video is None:
-        video = cv2.VideoWriter(str(out / "overlay.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+        video = cv2.VideoWriter(str(out / OVERLAY_TMP), cv2.VideoWriter_fourcc(*"mp4v"), fps,
                                 (img.shape[1], img.shape[0]))
     video.write(img)
     return video
@@ -306,7 +316,8 @@ def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, me
         from ..video.track_video import plot_joint_angles
 
         try:
-            plot_joint_angles(robot, qs, out / "joint_angles.png", frames=frames.numbers[: len(qs)])
+            with replaced(out / "joint_angles.png") as tmp:
+                plot_joint_angles(robot, qs, tmp, frames=frames.numbers[: len(qs)])
         except Exception as err:  # noqa: BLE001 - the plot is a convenience
             print(f"note: joint_angles.png skipped ({err})", file=sys.stderr)
     try:
@@ -315,12 +326,13 @@ def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, me
         print(f"note: animation.html skipped (viewer unavailable: {err})", file=sys.stderr)
     else:
         try:
-            write_animation_html(robot, qs, args.fps, out / "animation.html")
+            with replaced(out / "animation.html") as tmp:
+                write_animation_html(robot, qs, args.fps, tmp)
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
     meta["complete"] = True
     try:
-        (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_files_atomically({out / "meta.json": json.dumps(meta, indent=2) + "\n"})
     except OSError as err:
         raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
 
@@ -339,6 +351,7 @@ def _summary(out: Path, results: list, frames: _Frames, poor_fit: float, video: 
           f"(frame {frames.numbers[int(fits.argmin())]})")
 
 
+@owns_output
 def run(args: argparse.Namespace) -> int:
     video_mode = bool(args.video)
     auto = args.init == "auto" or (video_mode and not args.init)

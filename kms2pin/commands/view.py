@@ -2,7 +2,7 @@
 a standalone HTML page / a PNG picture of it.
 
 Without --no-serve, a meshcat server and a joint-control page are started on
-localhost and their URLs printed; the command then runs until interrupted
+127.0.0.1 (this machine only; --host to listen elsewhere) and their URLs printed; the command then runs until interrupted
 (Ctrl-C).  --pose takes revolute joint angles in degrees, e.g.
 --pose leftThigh_hip=60 leftShin_knee=40 (the control page shows the current
 configuration in this form).
@@ -48,10 +48,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="which rigidBodySystem, if the spec has several")
     p.add_argument("--no-serve", action="store_true", help="only write --html/--png, start no server")
     p.add_argument("--port", type=int, default=0, help="port of the joint-control page (default: any free port)")
+    p.add_argument("--host", default="127.0.0.1", metavar="ADDRESS",
+                   help="address the meshcat viewer and the joint-control page listen on (default 127.0.0.1: "
+                        "this machine only; another one, e.g. 0.0.0.0, lets other machines see and move the "
+                        "model, and a warning says so)")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..viewer import JointControl, PoseError, RobotView, parse_pose
+    from ..viewer._meshcat_server import is_loopback
 
     if args.no_serve and not (args.html or args.png):
         raise UsageError("--no-serve needs --html or --png (there is nothing else to do)")
@@ -63,7 +68,10 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--pose: {err}") from None
     width, height = args.size
     aspect = width / height if args.png else 16 / 10
-    view = RobotView(robot, q, camera=args.camera, aspect=aspect, serve=not args.no_serve)
+    if not args.no_serve and not is_loopback(args.host):
+        print(f"warning: --host {args.host}: the viewer and the joint-control page are open to other machines "
+              "on the network (anyone who reaches them can see and move the model)", file=sys.stderr)
+    view = RobotView(robot, q, camera=args.camera, aspect=aspect, serve=not args.no_serve, host=args.host)
     control = None
     try:
         if args.html:
@@ -74,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if args.png:
             view.camera(args.camera, 16 / 10)
-        control = JointControl(robot, view, port=args.port)
+        control = JointControl(robot, view, host=args.host, port=args.port)
         print(f"meshcat viewer:  {view.url}")
         print(f"joint control:   {control.url}")
         print("press Ctrl-C to stop", flush=True)

@@ -14,7 +14,12 @@ list of them)::
      "world_T_camera": {"rotation": [[...], [...], [...]], "translation": [x, y, z]},
      "dist": [k1, k2, p1, p2, k3]}
 
-``name`` and ``dist`` are optional.
+``name`` and ``dist`` are optional.  The accepted ranges (anything else is a
+:class:`~kms2pin.errors.CameraError` naming the file and the field): ``width`` and
+``height`` whole numbers in [1, 8192] (:data:`~kms2pin.userfile.MAX_IMAGE_SIDE`);
+focal lengths ``fx``, ``fy`` in [1e-3, 1e6] pixels and the principal point within
++-1e6 pixels; the translation within +-1e6 world units (the spec's lengths'
+range); distortion coefficients within +-1e6.
 """
 
 from __future__ import annotations
@@ -32,9 +37,13 @@ import pinocchio as pin
 
 from kms2pin.errors import CameraError, did_you_mean
 from kms2pin.jsonfile import read_json
+from kms2pin.lang.semantics import MAX_LENGTH
 from kms2pin.robot import rotation_error
+from kms2pin.userfile import MAX_IMAGE_SIDE
 
 ROTATION_TOL = 1e-6
+MAX_COORDINATE = MAX_LENGTH  # 1e6: |translation| (the spec's lengths' range), |cx|, |cy|, |dist|, fx, fy at most
+MIN_FOCAL = 1e-3  # fx, fy at least this (pixels)
 DIST_LENGTHS = (4, 5, 8, 12, 14)
 FIELDS = ("name", "width", "height", "K", "world_T_camera", "dist")
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
@@ -67,7 +76,8 @@ class Camera:
             R, t = m[:3, :3], m[:3, 3]
         self._K = _check_K(_matrix(K, (3, 3), where, "K", "a 3x3 matrix of numbers"), where)
         self._R = _check_rotation(R, where, "world_T_camera.rotation")
-        self._t = _matrix(t, (3,), where, "world_T_camera.translation", "a list of 3 numbers")
+        self._t = _check_translation(_matrix(t, (3,), where, "world_T_camera.translation", "a list of 3 numbers"),
+                                     where)
         self._width = _check_size(width, where, "width")
         self._height = _check_size(height, where, "height")
         self._dist = None if dist is None else _check_dist(dist, where)
@@ -372,6 +382,16 @@ def _nested_numbers(value: Any, shape: tuple[int, ...]) -> np.ndarray | None:
     return np.stack(rows)  # type: ignore[arg-type]
 
 
+def _within(values: np.ndarray, bound: float, where: str, field: str, unit: str) -> np.ndarray:
+    if np.max(np.abs(values)) > bound:
+        raise CameraError(f"{where}: field '{field}' must be within +-{bound:g}{unit}, got {values.tolist()}")
+    return values
+
+
+def _check_translation(t: np.ndarray, where: str) -> np.ndarray:
+    return _within(t, MAX_COORDINATE, where, "world_T_camera.translation", " (world units)")
+
+
 def _check_K(K: np.ndarray, where: str) -> np.ndarray:
     if (
         np.max(np.abs(K[2] - [0.0, 0.0, 1.0])) > 1e-12
@@ -384,6 +404,10 @@ def _check_K(K: np.ndarray, where: str) -> np.ndarray:
             f"{where}: field 'K' must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] "
             f"with positive focal lengths fx, fy (no skew: OpenCV ignores it), got {K.tolist()}"
         )
+    if not (MIN_FOCAL <= K[0, 0] <= MAX_COORDINATE and MIN_FOCAL <= K[1, 1] <= MAX_COORDINATE):
+        raise CameraError(f"{where}: field 'K': focal lengths fx, fy must be in [{MIN_FOCAL:g}, {MAX_COORDINATE:g}] "
+                          f"pixels, got {K[0, 0]:g}, {K[1, 1]:g}")
+    _within(K[:2, 2], MAX_COORDINATE, where, "K", " pixels for the principal point cx, cy")
     return K
 
 
@@ -403,6 +427,9 @@ def _check_size(value: Any, where: str, field: str) -> int:
         value = int(value)
     if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
         raise CameraError(f"{where}: field '{field}' must be a positive integer, got {value!r}")
+    if value > MAX_IMAGE_SIDE:
+        raise CameraError(f"{where}: field '{field}' is {value} pixels; images of at most {MAX_IMAGE_SIDE} "
+                          "pixels a side are supported")
     return value
 
 
@@ -417,7 +444,7 @@ def _check_dist(value: Any, where: str) -> np.ndarray:
         raise CameraError(f"{where}: field 'dist' must be {expect}")
     if not np.all(np.isfinite(arr)):
         raise CameraError(f"{where}: field 'dist' must contain finite numbers")
-    return arr
+    return _within(arr, MAX_COORDINATE, where, "dist", "")
 
 
 def _parse_camera(data: Any, where: str) -> Camera:
@@ -448,7 +475,8 @@ def _parse_camera(data: Any, where: str) -> Camera:
         if key not in pose:
             raise CameraError(f"{where}: missing field 'world_T_camera.{key}'")
     R = _check_rotation(pose["rotation"], where, "world_T_camera.rotation")
-    t = _matrix(pose["translation"], (3,), where, "world_T_camera.translation", "a list of 3 numbers")
+    t = _check_translation(_matrix(pose["translation"], (3,), where, "world_T_camera.translation",
+                                  "a list of 3 numbers"), where)
     dist = data.get("dist")
     if dist is not None:
         dist = _check_dist(dist, where)

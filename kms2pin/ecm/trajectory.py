@@ -5,6 +5,7 @@ and :class:`TrajectoryCsvWriter`, which writes the CSV a frame at a time."""
 from __future__ import annotations
 
 import csv
+import io
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -12,7 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputDataError
+from ..lang.semantics import MAX_LENGTH
 from ..robot import Robot
+from ..userfile import MAX_DATA_BYTES, read_user_file
 
 
 @dataclass(frozen=True)
@@ -201,9 +204,9 @@ class Trajectory:
         cell (every joint coordinate must be a finite number).
         """
         try:
-            with open(path, newline="", encoding="utf-8-sig") as f:
-                reader = csv.reader(f)
-                rows = [(reader.line_num, row) for row in reader]
+            text = read_user_file(path, MAX_DATA_BYTES).decode("utf-8-sig")
+            reader = csv.reader(io.StringIO(text, newline=""))
+            rows = [(reader.line_num, row) for row in reader]
         except OSError as err:
             raise InputDataError(f"{path}: cannot read: {err.strerror}") from None
         except UnicodeDecodeError:
@@ -241,11 +244,30 @@ class Trajectory:
         if short < len(body):
             line, row = body[short]
             raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
+        if robot.root == "free":
+            _check_root(q, [line for line, _ in body], cols, path)
         for jid in range(1, robot.model.njoints):
             j = robot.model.joints[jid]
             if j.nq == 1:
                 q[:, j.idx_q] = np.radians(q[:, j.idx_q])
         return cls(robot, q)
+
+
+def _check_root(q: np.ndarray, lines: list[int], cols: list[str], path) -> None:
+    """A free root's rows of a CSV: position within +-MAX_LENGTH, quaternion not zero;
+    the quaternions are normalized in place (as Robot's methods take them)."""
+    far = np.flatnonzero(np.abs(q[:, :3]).max(axis=1, initial=0) > MAX_LENGTH)
+    if len(far):
+        k = far[0]
+        raise InputDataError(f"{path}:{lines[k]}: root position ({', '.join(cols[:3])}) must be within "
+                             f"+-{MAX_LENGTH:g}, got {q[k, :3].tolist()}")
+    quat = q[:, 3:7]
+    scale = np.abs(quat).max(axis=1, initial=0)
+    zero = np.flatnonzero(scale == 0)
+    if len(zero):
+        raise InputDataError(f"{path}:{lines[zero[0]]}: the root quaternion ({', '.join(cols[3:7])}) is zero")
+    quat /= scale[:, None]  # scaled first, so that huge or tiny values do not overflow
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
 
 
 class TrajectoryCsvWriter:

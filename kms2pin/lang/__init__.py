@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 from ..errors import Diagnostic, SpecError
 from ..model import ModelSpec
+from ..userfile import MAX_SPEC_BYTES, read_user_file
 from .parser import parse_text as _parse_ast
 from .semantics import analyze
 
@@ -17,9 +17,11 @@ def parse_text(text: str, path: str = "<string>") -> ModelSpec:
 
 
 def read_spec(path: str | os.PathLike) -> tuple[str, str]:
-    """Read a spec file as UTF-8 text; returns (text, path as given)."""
+    """Read a spec file as UTF-8 text; returns (text, path as given).  The file must be
+    a regular file of at most :data:`~kms2pin.userfile.MAX_SPEC_BYTES` (else OSError,
+    see :func:`~kms2pin.userfile.read_user_file`)."""
     shown = os.fspath(path)
-    data = Path(path).read_bytes()
+    data = read_user_file(path, MAX_SPEC_BYTES)
     try:
         return data.decode("utf-8"), shown
     except UnicodeDecodeError as err:

@@ -96,7 +96,11 @@ def _fn_table() -> dict[str, tuple[int, object]]:
 FUNCTIONS = _fn_table()
 STATEMENTS = {"innerLam": "body", "outerLam": "body", "pos": "bvec", "orient": "bvec"}
 JOINT_KINDS = ("fixed", "revolute")
-MAX_LENGTH = 1e6  # larger bodies overflow the URDF's inertia (mass ~ a b c, inertia ~ m a^2)
+# the accepted ranges (docs/language.md, 'Numbers'): semi-axes in [MIN_LENGTH, MAX_LENGTH],
+# bound-vector positions within +-MAX_LENGTH.  Larger bodies overflow the URDF's inertia
+# (mass ~ a b c, inertia ~ m a^2), smaller ones underflow it to zero.
+MAX_LENGTH = 1e6
+MIN_LENGTH = 1e-6
 
 
 # --- things being built
@@ -803,6 +807,9 @@ class Analyzer:
             elif min(lam) <= 0:
                 self.error(loc, f"{what} semi-axes must be positive, got ({_fmt(lam)})", body.def_calls)
                 body.poisoned = True
+            elif min(lam) < MIN_LENGTH:
+                self.error(loc, f"{what} semi-axes must be at least {MIN_LENGTH:g}, got ({_fmt(lam)})", body.def_calls)
+                body.poisoned = True
             elif max(lam) > MAX_LENGTH:
                 self.error(loc, f"{what} semi-axes must be at most {MAX_LENGTH:g}, got ({_fmt(lam)})", body.def_calls)
                 body.poisoned = True
@@ -825,6 +832,10 @@ class Analyzer:
             if val is None:
                 self.error(bv.loc, f"bound vector '{bv.name}'{owner} has no {what}(x, y, z)", bv.calls)
                 bv.poisoned = True
+        if bv.pos is not None and max(abs(x) for x in bv.pos) > MAX_LENGTH:
+            self.error(bv.pos_loc, f"pos coordinates of '{bv.name}'{owner} must be within +-{MAX_LENGTH:g}, "
+                                   f"got ({_fmt(bv.pos)})", bv.calls)
+            bv.poisoned = True
         if bv.orient is not None and _norm(bv.orient) < 1e-12:
             self.error(
                 bv.orient_loc,

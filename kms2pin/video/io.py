@@ -10,12 +10,26 @@ warns (:class:`TruncatedVideoWarning`) instead.
 A folder is read in natural name order (``frame_2.png`` before ``frame_10.png``;
 zero-padded names sort the same either way); every image must have the size of
 the first one.
+
+A video is decoded in a child process (:mod:`kms2pin.video._decoder`), so a file
+that crashes the decoder ends that process with a located error instead of this
+one: :class:`FrameSource` first probes the file (its header and first frame), then
+each iteration streams the frames from a new child.  Images and frames larger than
+:data:`~kms2pin.userfile.MAX_IMAGE_SIDE` pixels a side are refused before they are
+decoded where the header tells their size (videos, and images in the formats
+Pillow identifies), after decoding otherwise.
 """
 
 from __future__ import annotations
 
+import fcntl
+import io
+import json
 import os
 import re
+import select
+import signal
+import subprocess
 import sys
 import tempfile
 import warnings
@@ -25,7 +39,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .._child import helper_command
 from ..errors import InputDataError
+from ..userfile import MAX_IMAGE_SIDE, read_user_file
+from . import _decoder
 
 IMAGE_EXTENSIONS = frozenset(
     {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pbm", ".pnm", ".jp2", ".exr", ".hdr"}
@@ -50,21 +67,173 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
     return sorted(files, key=lambda p: natural_key(p.name))
 
 
-def read_image(path: str | os.PathLike, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
-    """Read one image; a missing file raises FileNotFoundError, an undecodable one InputDataError."""
+MAX_IMAGE_BYTES = 512 * 2**20  # an image file: 512 MiB (8192 x 8192 pixels of 16-bit RGBA, uncompressed)
+
+
+def _too_large(where: Path | str, width: int, height: int, what: str = "image") -> InputDataError:
+    return InputDataError(f"{where}: the {what} is {width}x{height} pixels; at most {MAX_IMAGE_SIDE} pixels a side "
+                          "are supported (scale it down first)")
+
+
+def _header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from an image file's header, without decoding it (None if unknown)."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: we check the size ourselves
+            with Image.open(io.BytesIO(data)) as im:
+                return im.size
+    except Exception:  # noqa: BLE001 - a format Pillow does not know: OpenCV decodes it below
+        return None
+
+
+def decode_image(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED, where: str | None = None) -> np.ndarray:
+    """``cv2.imdecode`` of the file ``path`` (a regular file; at most
+    :data:`~kms2pin.userfile.MAX_IMAGE_SIDE` pixels a side, checked from the header
+    before decoding where it tells).  A missing file raises FileNotFoundError, an
+    unreadable, undecodable or too large one InputDataError starting with ``where``
+    (default: the path)."""
     path = Path(path)
+    where = str(path) if where is None else where
     if not path.exists():
         raise FileNotFoundError(2, "no such file", str(path))
     try:
-        data = np.fromfile(str(path), dtype=np.uint8)
+        data = read_user_file(path, MAX_IMAGE_BYTES)
     except OSError as e:
-        raise InputDataError(f"{path}: cannot read image: {e.strerror or e}") from None
-    img = cv2.imdecode(data, flags) if data.size else None
+        raise InputDataError(f"{where}: cannot read image: {e.strerror or e}") from None
+    size = _header_size(data)
+    if size is not None and max(size) > MAX_IMAGE_SIDE:
+        raise _too_large(where, *size)
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
     if img is None:
-        raise InputDataError(f"{path}: not a readable image (empty, truncated or unknown format)")
+        raise InputDataError(f"{where}: not a readable image (empty, truncated or unknown format)")
+    if max(img.shape[:2]) > MAX_IMAGE_SIDE:
+        raise _too_large(where, img.shape[1], img.shape[0])
+    return img
+
+
+def read_image(path: str | os.PathLike, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """Read one image as 8 bits (see :func:`decode_image` for the errors)."""
+    img = decode_image(path, flags)
     if img.dtype != np.uint8:  # 16-bit PNG/TIFF, float EXR: scale to 8 bits
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     return img
+
+
+# ---------------------------------------------------------------- videos, decoded in a child process
+
+STALL_TIMEOUT = 120.0  # seconds without a byte from the decoder: it is taken to hang
+
+
+class _DecoderStopped(Exception):
+    """The decoder process ended without its end record (a crash) or reported an error."""
+
+
+class _Decoder:
+    """One child process running :mod:`kms2pin.video._decoder` on a video (``mode``
+    ``probe`` or ``frames``): ``info`` is its header; :meth:`frames` yields images."""
+
+    def __init__(self, path: Path, mode: str):
+        self.path = path
+        cmd = helper_command(_decoder.__file__, mode, os.fspath(path))
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.DEVNULL, bufsize=0)
+        try:  # a frame in one pipe buffer, not 64 KiB at a time (Linux; 1 MiB is the default maximum)
+            fcntl.fcntl(self.proc.stdout, getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)
+        except OSError:
+            pass
+        self.info = json.loads(self._line() or '{"ok": false, "error": "the video decoder did not start"}')
+
+    def _wait(self) -> None:
+        if not select.select([self.proc.stdout], [], [], STALL_TIMEOUT)[0]:
+            self.close()
+            raise _DecoderStopped(f"the video decoder stopped responding for {STALL_TIMEOUT:g} s")
+
+    def _line(self) -> bytes:
+        line = b""
+        while not line.endswith(b"\n"):
+            self._wait()
+            byte = self.proc.stdout.read(1)
+            if not byte:
+                return b""  # ended: the caller asks why
+            line += byte
+        return line
+
+    def _read_into(self, buf: memoryview) -> bool:
+        got = 0
+        while got < len(buf):
+            self._wait()
+            n = self.proc.stdout.readinto(buf[got:])
+            if not n:
+                return False
+            got += n
+        return True
+
+    def _died(self) -> _DecoderStopped:
+        code = self.proc.wait()
+        if code < 0:
+            try:
+                name = signal.Signals(-code).name
+            except ValueError:
+                name = f"signal {-code}"
+            return _DecoderStopped(f"the video decoder (OpenCV/FFmpeg) crashed ({name})")
+        return _DecoderStopped(f"the video decoder ended unexpectedly (status {code})")
+
+    def frames(self) -> Iterator[np.ndarray]:
+        head = bytearray(_decoder.RECORD.size)
+        while True:
+            if not self._read_into(memoryview(head)):
+                raise self._died()
+            rows, cols, channels, flag = _decoder.RECORD.unpack(head)
+            if rows == 0:
+                if flag:
+                    raise _DecoderStopped(json.loads(self._line() or b'{"error": "?"}')["error"])
+                return
+            if max(rows, cols) > MAX_IMAGE_SIDE:
+                self.close()
+                raise InputDataError(_too_large(self.path, cols, rows, "video's frame").args[0])
+            img = np.empty((rows, cols, channels), dtype=np.uint8)
+            if not self._read_into(memoryview(img).cast("B")):
+                raise self._died()
+            yield img
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self.proc.stdout.close()
+
+
+def _crash_advice(path: Path) -> str:
+    return (f"the file is damaged or in a form the decoder cannot read; convert it, e.g. to a folder of PNG "
+            f"images with `ffmpeg -i {path} frames/%05d.png`")
+
+
+def probe_video(path: Path) -> dict:
+    """The video's header (``frames``, ``fps``, ``width``, ``height``, ``raw``), after
+    decoding its first frame in a child process; InputDataError if it cannot be opened,
+    is too large or crashes the decoder."""
+    dec = _Decoder(path, "probe")
+    try:
+        info = dec.info
+        if not info.get("ok"):
+            raise InputDataError(f"{path}: {info.get('error', 'cannot open as a video')}")
+        if max(info["width"], info["height"]) > MAX_IMAGE_SIDE:
+            raise _too_large(path, info["width"], info["height"], "video's frame")
+        info["decoded"] = False
+        try:
+            for img in dec.frames():
+                info["width"], info["height"], info["decoded"] = img.shape[1], img.shape[0], True
+        except _DecoderStopped as err:
+            raise InputDataError(f"{path}: frame 0: {err}; {_crash_advice(path)}") from None
+        return info
+    finally:
+        dec.close()
 
 
 class FrameSource:
@@ -84,6 +253,7 @@ class FrameSource:
         self.frames_read = 0
         self.stopped_early: str | None = None
         self.fps: float | None = None
+        self.frame_size: tuple[int, int] | None = None  # (width, height) of a video's frames, from the probe
         if self.is_folder:
             self.files = list_images(self.path)
             if not self.files:
@@ -92,21 +262,14 @@ class FrameSource:
             self.len_hint: int | None = len(self.files)
         else:
             self.files = []
-            cap = self._open()
-            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-            fps = float(cap.get(cv2.CAP_PROP_FPS))
-            cap.release()
+            if not self.path.is_file():  # a FIFO would block the decoder, a device never end
+                raise InputDataError(f"{self.path}: not a regular file (a video must be a file or a folder of images)")
+            info = probe_video(self.path)
+            n, fps = info["frames"], info["fps"]
             self.len_hint = n if n > 0 else None
             self.fps = fps if fps > 0 else None
-
-    def _open(self) -> cv2.VideoCapture:
-        cap = cv2.VideoCapture(str(self.path))
-        if not cap.isOpened():
-            cap.release()
-            raise InputDataError(
-                f"{self.path}: cannot open as a video (unknown format, unsupported codec or truncated file)"
-            )
-        return cap
+            if info["decoded"]:
+                self.frame_size = (info["width"], info["height"])
 
     def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
         self.frames_read = 0
@@ -132,23 +295,25 @@ class FrameSource:
             yield i, img
 
     def _iter_video(self) -> Iterator[tuple[int, np.ndarray]]:
-        cap = self._open()
+        dec = _Decoder(self.path, "frames")
+        stopped = None
         try:
-            i = 0
-            while True:
-                ok, img = cap.read()
-                if not ok or img is None:
-                    break
-                if img.ndim == 2:
-                    img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+            if not dec.info.get("ok"):
+                raise InputDataError(f"{self.path}: {dec.info.get('error', 'cannot open as a video')}")
+            for i, img in enumerate(dec.frames()):
                 self.frames_read = i + 1
                 yield i, img
-                i += 1
+        except _DecoderStopped as err:
+            stopped = str(err)
         finally:
-            cap.release()
+            dec.close()
         if self.frames_read == 0:
-            raise InputDataError(f"{self.path}: no frame could be decoded (empty, corrupt or truncated video)")
-        if self.len_hint is not None and self.frames_read < self.len_hint:
+            why = f"{stopped}; {_crash_advice(self.path)}" if stopped else "empty, corrupt or truncated video"
+            raise InputDataError(f"{self.path}: no frame could be decoded ({why})")
+        if stopped:
+            self.stopped_early = (f"{self.path}: stopped at frame {self.frames_read} (frames 0-{self.frames_read - 1} "
+                                  f"read): {stopped}")
+        elif self.len_hint is not None and self.frames_read < self.len_hint:
             self.stopped_early = (
                 f"{self.path}: stopped at frame {self.frames_read} (frames 0-{self.frames_read - 1} read); "
                 f"the file announces {self.len_hint} frames: truncated or corrupt video"
@@ -223,6 +388,8 @@ _PNG = b"\x89PNG\r\n\x1a\n"
 def _frames_in(folder: Path) -> dict[int, Path]:
     frames: dict[int, Path] = {}
     for path in sorted(folder.glob("*.png")) + sorted(folder.glob("*.PNG")):
+        if not path.is_file():  # a FIFO would block the header check, a device never end
+            raise InputDataError(f"{path}: not a regular file")
         m = _FRAME_NUMBER.search(path.name)
         if m is None:
             raise InputDataError(f"{path}: cannot tell the frame number from the name (expected frame_NNNNN.png)")
@@ -293,9 +460,7 @@ def check_mask_sizes(per_cam: list[dict[int, Path]], numbers: list[int], shapes:
 def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "") -> np.ndarray:
     """Frame ``frame``'s mask (bool, (H, W) = ``shape``) from a PNG: non-zero is
     foreground; a grey image is thresholded at 127 (with a note on stderr)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputDataError(f"{path}: frame {frame}: cannot read the image (not a PNG, or damaged)")
+    img = decode_image(path, where=f"{path}: frame {frame}")  # refuses over 8192 pixels a side before decoding
     if img.ndim == 3:
         img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
     if img.shape != shape:

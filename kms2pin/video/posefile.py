@@ -2,11 +2,13 @@
 
 ``{"joints": {name: degrees}, "root": {"position": [x, y, z], "rotation": 3x3 |
 "quaternion_xyzw": [x, y, z, w]}}``; joints left out keep their rest angle, the root
-left out keeps its rest pose.
+left out keeps its rest pose.  The position must be within +-1e6 (the spec's lengths'
+range); the quaternion need not be unit (any non-zero one is normalized).
 """
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -14,15 +16,16 @@ import pinocchio as pin
 
 from ..errors import InputDataError, did_you_mean
 from ..jsonfile import read_json
+from ..lang.semantics import MAX_LENGTH
 from ..robot import Robot, rotation_error
 
 __all__ = ["read_pose_json"]
 
 
 def _rotation(value, where: str) -> np.ndarray:
-    R = np.asarray(value, dtype=float)
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+    if not (isinstance(value, list) and len(value) == 3 and all(_numbers(row, 3) for row in value)):
         raise InputDataError(f"{where}: root rotation must be a 3x3 matrix")
+    R = np.array(value, dtype=float)
     off, det = rotation_error(R)
     if off > 1e-3 or det < 0:
         raise InputDataError(f"{where}: root rotation is not a rotation matrix (RᵀR ≠ I or det < 0)")
@@ -50,7 +53,7 @@ def read_pose_json(robot: Robot, path: str | os.PathLike) -> np.ndarray:
             raise InputDataError(
                 f"{where}: '{robot.system.name}' has no revolute joint '{name}'{did_you_mean(name, names)}"
             )
-        if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not np.isfinite(deg):
+        if not _number(deg):
             raise InputDataError(f"{where}: joint '{name}': angle must be a number (degrees), not {deg!r}")
         q[model.joints[names[name]].idx_q] = np.radians(float(deg))
     if "root" in data:
@@ -65,6 +68,8 @@ def read_pose_json(robot: Robot, path: str | os.PathLike) -> np.ndarray:
             pos = np.asarray(root["position"], dtype=float) if _numbers(root["position"], 3) else None
             if pos is None:
                 raise InputDataError(f"{where}: root position must be [x, y, z]")
+            if np.abs(pos).max() > MAX_LENGTH:
+                raise InputDataError(f"{where}: root position must be within +-{MAX_LENGTH:g}, got {pos.tolist()}")
             p = pos
         if "rotation" in root and "quaternion_xyzw" in root:
             raise InputDataError(f"{where}: give the root's 'rotation' or 'quaternion_xyzw', not both")
@@ -73,18 +78,25 @@ def read_pose_json(robot: Robot, path: str | os.PathLike) -> np.ndarray:
         elif "quaternion_xyzw" in root:
             if not _numbers(root["quaternion_xyzw"], 4):
                 raise InputDataError(f"{where}: quaternion_xyzw must be [x, y, z, w]")
-            x, y, z, w = map(float, root["quaternion_xyzw"])
-            n = np.sqrt(x * x + y * y + z * z + w * w)
-            if not n > 1e-9:
+            v = np.array(root["quaternion_xyzw"], dtype=float)
+            if not np.abs(v).max() > 0:
                 raise InputDataError(f"{where}: quaternion_xyzw is zero")
-            R = pin.Quaternion(w / n, x / n, y / n, z / n).toRotationMatrix()
+            v /= np.abs(v).max()  # scaled first, so that huge or tiny values do not overflow
+            x, y, z, w = v / np.linalg.norm(v)
+            R = pin.Quaternion(w, x, y, z).toRotationMatrix()
         q[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, p))
     return q
 
 
+def _number(value) -> bool:
+    """A JSON number (not a bool) that is a finite double."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:  # an integer beyond the doubles
+        return False
+
+
 def _numbers(value, n: int) -> bool:
-    return (
-        isinstance(value, list)
-        and len(value) == n
-        and all(not isinstance(v, bool) and isinstance(v, (int, float)) and np.isfinite(v) for v in value)
-    )
+    return isinstance(value, list) and len(value) == n and all(_number(v) for v in value)

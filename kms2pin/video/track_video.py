@@ -26,6 +26,8 @@ from .segmentation import Segmenter, SegmentParams
 def frame_size(path: str | os.PathLike) -> tuple[int, int]:
     """(width, height) of the first frame of a video file or image folder."""
     src = open_frames(path)
+    if src.frame_size is not None:  # a video: its probe decoded the first frame
+        return src.frame_size
     it = iter(src)
     try:
         _, img = next(it)

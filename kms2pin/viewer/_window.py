@@ -1,11 +1,13 @@
 """meshcat windows that clean up after themselves, and one that needs no server.
 
-meshcat's own :class:`meshcat.visualizer.ViewerWindow` starts its server with
+meshcat's own :class:`meshcat.visualizer.ViewerWindow` starts its server (which
+listens on every interface and outlives a killed parent) with
 stdout and stderr piped and never reads them again.  The server writes a line
 to stderr for every browser connection, so after a few hundred connections the
 pipe is full and the server blocks for good; its ``close()`` does not exist
 (``Visualizer.close()`` raises AttributeError) and the server only dies at
-interpreter exit.  :class:`ServerWindow` starts the same server with stderr
+interpreter exit.  :class:`ServerWindow` starts the same server, kept local and
+tied to this process (:mod:`kms2pin.viewer._meshcat_server`), with stderr
 discarded and stdout drained, puts a timeout on every request, and stops the
 server in :meth:`ServerWindow.close`.
 
@@ -19,7 +21,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -29,6 +30,8 @@ import umsgpack
 import zmq
 from meshcat.servers.tree import SceneTree, find_node, walk
 
+from .._child import helper_command
+from . import _meshcat_server
 from .errors import ViewerError
 
 MESHCAT_COMMANDS = ("set_transform", "set_object", "delete", "set_property", "set_animation")
@@ -141,23 +144,22 @@ class RecordingWindow:
 class ServerWindow:
     """A meshcat server subprocess plus a ZMQ connection to it (see module docstring).
 
+    The server (:mod:`kms2pin.viewer._meshcat_server`) listens on ``host`` only
+    (127.0.0.1: this machine), answers only its own address there, and exits when
+    this process is gone, even killed with SIGKILL.
     Attributes: ``server_proc`` (the subprocess), ``zmq_url``, ``web_url``.
     Every request times out after ``timeout`` seconds with a :class:`ViewerError`.
     """
 
-    def __init__(self, timeout: float = 20.0, start_timeout: float = 30.0) -> None:
+    def __init__(self, timeout: float = 20.0, start_timeout: float = 30.0, host: str = "127.0.0.1") -> None:
         self.timeout = timeout
         self.lock = threading.RLock()  # one REQ socket: one request at a time
-        env = dict(os.environ)
-        meshcat_root = str(Path(meshcat.__file__).resolve().parents[1])
-        env["PYTHONPATH"] = meshcat_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         self.server_proc = subprocess.Popen(
-            [sys.executable, "-u", "-m", "meshcat.servers.zmqserver"],
+            helper_command(_meshcat_server.__file__, host, str(os.getpid())),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
-            env=env,
-            start_new_session=True,
+            start_new_session=True,  # Ctrl-C in a terminal reaches this process, which then stops the server
         )
         urls: dict[str, str] = {}
         ready = threading.Event()

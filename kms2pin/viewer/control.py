@@ -7,7 +7,7 @@ reset-to-rest button, camera buttons and the configuration as a ``--pose``
 string.  Slider moves POST to the server, which updates :attr:`JointControl.q`
 and sends one ``set_transform`` per body to meshcat (no geometry upload).
 
-HTTP interface (JSON in, JSON out; errors are ``400 {"error": message}``):
+HTTP interface (JSON in, JSON out; errors are ``{"error": message}``):
 
 * ``GET /``        the page (``/?pose=name=deg,name=deg`` moves those sliders on load)
 * ``GET /state``   ``{"joints": [{"name", "deg", "min", "max"}], "pose", "meshcat_url", "updates"}``
@@ -15,6 +15,15 @@ HTTP interface (JSON in, JSON out; errors are ``400 {"error": message}``):
 * ``POST /pose``   ``{"pose": "name=deg name=deg ..."}``
 * ``POST /reset``  back to the rest pose
 * ``POST /camera`` ``{"view": "front" | "side" | "top" | "iso"}`` re-frames the current pose
+
+The page answers only itself (:func:`check_request`): bound to a loopback address
+(the default, 127.0.0.1), a request whose ``Host`` is not its own address gets 403
+(a DNS name rebound to 127.0.0.1 cannot read ``/state``), and so does one whose
+``Origin``, when present, is not its own origin (a page of another site cannot move
+a joint through the user's browser).  A POST body must come with a valid
+``Content-Length`` (missing: 411; not a whole number >= 0: 400) of at most
+:data:`MAX_BODY` bytes (413), refused before anything is read; a body that is not
+a JSON object of the right fields and types, or is nested too deeply, is 400.
 """
 
 from __future__ import annotations
@@ -25,17 +34,21 @@ import math
 import threading
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from urllib.parse import urlsplit
 
 import meshcat
 import numpy as np
 
 from ..errors import Kms2pinError
+from ..jsonfile import parse_json
 from ..robot import Robot
+from ._meshcat_server import is_loopback, own_hosts
 from .errors import PoseError, ViewerError
 from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints
 from .robot_view import RobotView
 
 MAX_BODY = 64 * 1024
+READ_TIMEOUT = 30.0  # seconds a request may take to arrive
 
 
 class JointControl:
@@ -196,12 +209,82 @@ class JointControl:
             .replace("%MESHCAT%", html.escape(meshcat_url))
 
 
+class RequestError(Exception):
+    """A request the page refuses: HTTP ``status`` and a message."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+def check_request(headers, server_host: str, port: int) -> None:
+    """Raise RequestError(403) unless the request is for this page from this page
+    (module docstring); ``server_host`` and ``port`` are where it listens."""
+    host = (headers.get("Host") or "").lower()
+    if is_loopback(server_host) and host not in own_hosts(server_host, port):
+        raise RequestError(HTTPStatus.FORBIDDEN, f"this page answers only to its own address, not Host {host!r}")
+    origin = headers.get("Origin")
+    if origin is not None and urlsplit(origin.lower())[:2] != ("http", host):
+        raise RequestError(HTTPStatus.FORBIDDEN, f"cross-origin request from {origin!r} refused")
+
+
+def read_body(headers, rfile) -> dict:
+    """The JSON object of a POST body (module docstring); RequestError otherwise."""
+    if headers.get("Transfer-Encoding"):
+        raise RequestError(HTTPStatus.LENGTH_REQUIRED, "a chunked body is not accepted; send Content-Length")
+    text = headers.get("Content-Length")
+    if text is None:
+        raise RequestError(HTTPStatus.LENGTH_REQUIRED, "Content-Length is required")
+    if not text.strip().isdigit():
+        raise RequestError(HTTPStatus.BAD_REQUEST, f"bad Content-Length {text!r}")
+    n = int(text)
+    if n > MAX_BODY:
+        raise RequestError(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"request too large ({n} bytes; at most {MAX_BODY})")
+    try:
+        raw = rfile.read(n) if n else b""
+    except TimeoutError:
+        raise RequestError(HTTPStatus.REQUEST_TIMEOUT, f"the body did not arrive within {READ_TIMEOUT:g} s") from None
+    if len(raw) != n:
+        raise RequestError(HTTPStatus.BAD_REQUEST, f"body shorter than its Content-Length ({len(raw)} of {n} bytes)")
+    try:
+        data = parse_json(raw.decode("utf-8"), PoseError, "request body") if raw.strip() else {}
+    except UnicodeDecodeError:
+        raise RequestError(HTTPStatus.BAD_REQUEST, "bad request: the body is not UTF-8") from None
+    except PoseError as err:
+        raise RequestError(HTTPStatus.BAD_REQUEST, f"bad request: {err}") from None
+    if not isinstance(data, dict):
+        raise RequestError(HTTPStatus.BAD_REQUEST, "bad request: expected a JSON object")
+    return data
+
+
+def _field(data: dict, key: str, kind: type | tuple[type, ...], what: str, default=None):
+    """``data[key]`` (or ``default``) if it is a ``kind`` (not a bool), else RequestError(400)."""
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, kind):
+        raise RequestError(HTTPStatus.BAD_REQUEST, f"bad request: '{key}' must be {what}, not {value!r:.60}")
+    return value
+
+
 def _handler_for(control: JointControl):
     class Handler(BaseHTTPRequestHandler):
         server_version = "kms2pin-joint-control"
+        timeout = READ_TIMEOUT  # a client that stops sending does not hold a thread forever
 
         def log_message(self, fmt, *args):  # quiet
             pass
+
+        def _checked(self) -> bool:
+            """The Host/Origin check: False (403 sent) if the request is not for this page."""
+            try:
+                check_request(self.headers, *self.server.server_address[:2])
+            except RequestError as err:
+                self._refuse(err)
+                return False
+            return True
+
+        def _refuse(self, err: RequestError) -> None:
+            self.close_connection = True  # a body that was not read must not be taken for the next request
+            self._json(err.status, {"error": str(err)})
 
         def _send(self, status: int, body: bytes, ctype: str) -> None:
             self.send_response(status)
@@ -215,6 +298,8 @@ def _handler_for(control: JointControl):
             self._send(status, json.dumps(obj).encode("utf-8"), "application/json")
 
         def do_GET(self):  # noqa: N802
+            if not self._checked():
+                return
             path = self.path.split("?", 1)[0]
             if path in ("/", "/index.html"):
                 self._send(200, control.page().encode("utf-8"), "text/html; charset=utf-8")
@@ -224,34 +309,31 @@ def _handler_for(control: JointControl):
                 self._json(404, {"error": f"no such page: {path}"})
 
         def do_POST(self):  # noqa: N802
+            if not self._checked():
+                return
             path = self.path.split("?", 1)[0]
             try:
-                n = int(self.headers.get("Content-Length") or 0)
-                if n > MAX_BODY:
-                    raise ValueError("request too large")
-                raw = self.rfile.read(n) if n else b""
-                data = json.loads(raw.decode("utf-8")) if raw.strip() else {}
-                if not isinstance(data, dict):
-                    raise ValueError("expected a JSON object")
-            except (ValueError, UnicodeDecodeError) as err:
-                self._json(400, {"error": f"bad request: {err}"})
-                return
-            try:
+                data = read_body(self.headers, self.rfile)
                 if path == "/joint":
                     if "name" not in data or "deg" not in data:
-                        raise PoseError('expected {"name": joint, "deg": angle}')
-                    control.set_joint(str(data["name"]), data["deg"])
+                        raise RequestError(HTTPStatus.BAD_REQUEST, 'expected {"name": joint, "deg": angle}')
+                    control.set_joint(_field(data, "name", str, "a string"), _field(data, "deg", (int, float), "a number"))
                 elif path == "/pose":
-                    control.set_pose(str(data.get("pose", "")))
+                    control.set_pose(_field(data, "pose", str, "a string", ""))
                 elif path == "/reset":
                     control.reset()
                 elif path == "/camera":
-                    control.camera(str(data.get("view", "front")))
+                    control.camera(_field(data, "view", str, "a string", "front"))
                 else:
-                    self._json(HTTPStatus.NOT_FOUND, {"error": f"no such action: {path}"})
-                    return
+                    raise RequestError(HTTPStatus.NOT_FOUND, f"no such action: {path}")
+            except RequestError as err:
+                self._refuse(err)
+                return
             except Kms2pinError as err:
                 self._json(400, {"error": str(err)})
+                return
+            except Exception as err:  # noqa: BLE001 - the page stays up; the browser shows the error
+                self._json(500, {"error": f"internal error: {type(err).__name__}: {err}"})
                 return
             self._json(200, control.state())
 

@@ -17,11 +17,12 @@ from .errors import ViewerError
 from .scene import CameraSetup, ModelDrawing, draw_world_axes, frame_camera, plain_background, union_points
 
 
-def new_visualizer(serve: bool = True, timeout: float = 20.0) -> meshcat.Visualizer:
-    """A meshcat Visualizer on a fresh local server (``serve=True``), or on a
+def new_visualizer(serve: bool = True, timeout: float = 20.0, host: str = "127.0.0.1") -> meshcat.Visualizer:
+    """A meshcat Visualizer on a fresh server listening on ``host`` (``serve=True``;
+    127.0.0.1: this machine only), or on a
     :class:`~kms2pin.viewer._window.RecordingWindow` that needs no process.
     ``vis.close()`` stops the server; ``vis.url()`` is None without one."""
-    window = ServerWindow(timeout=timeout) if serve else RecordingWindow()
+    window = ServerWindow(timeout=timeout, host=host) if serve else RecordingWindow()
     return meshcat.Visualizer(window=window)
 
 
@@ -67,16 +68,17 @@ class RobotView:
             server if ``serve`` is true, else a server-less recording window.
         camera: ``front``, ``side``, ``top`` or ``iso``.
         aspect: width / height the camera is framed for.
+        host: where a new server listens (default 127.0.0.1: this machine only).
 
     ``close()`` (or ``with RobotView(...)``) stops the server it started.
     """
 
     def __init__(self, robot: Robot, q=None, vis: meshcat.Visualizer | None = None, *, camera: str = "front",
                  aspect: float = 1.0, serve: bool = False, joint_axes: bool = True, anchor: bool = True,
-                 world_axes: bool = True, outer: bool = True, name: str = "model"):
+                 world_axes: bool = True, outer: bool = True, name: str = "model", host: str = "127.0.0.1"):
         self.robot = robot
         self.owns_vis = vis is None
-        self.vis = new_visualizer(serve) if vis is None else vis
+        self.vis = new_visualizer(serve, host=host) if vis is None else vis
         try:
             plain_background(self.vis)
             self.drawing = ModelDrawing(robot, self.vis, name, joint_axes=joint_axes, anchor=anchor, outer=outer)

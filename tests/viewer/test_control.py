@@ -97,7 +97,7 @@ def test_bad_requests(control):
     status, body = post(control.url + "joint", {"name": "leftShin_kne", "deg": 5})
     assert status == 400 and "did you mean 'leftShin_knee'" in body["error"]
     status, body = post(control.url + "joint", {"name": "leftShin_knee", "deg": "abc"})
-    assert status == 400 and "not a number" in body["error"]
+    assert status == 400 and body["error"] == "bad request: 'deg' must be a number, not 'abc'"
     status, body = post(control.url + "joint", raw=b"{not json")
     assert status == 400
     status, body = post(control.url + "pose", {"pose": "trunk_waist=3"})
