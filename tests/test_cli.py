@@ -73,8 +73,8 @@ def test_check_tree_shows_nesting_and_rest_angles(capsys):
     assert main(["check", str(SPECS / "puma600.kms")]) == 0
     lines = capsys.readouterr().out.splitlines()[2:]
     assert [line.index("─") for line in lines] == [1, 4, 7, 10, 13]  # a chain
-    assert "link1  [revolute 'link1_lowerLink', axis (0, -1, 0) in base, rest 180 deg]" in lines[1]
-    assert "manipulator  [fixed" in lines[4] and "rest" not in lines[4]
+    assert "link1  [revolute 'link1_lowerLink', 1 DoF, axis (0, -1, 0) in base, rest 180 deg]" in lines[1]
+    assert "manipulator  [fixed 'manipulator_lowerLink', 0 DoF" in lines[4] and "rest" not in lines[4]
 
 
 def test_check_json_has_every_body(spec_path, capsys):
@@ -89,6 +89,7 @@ def test_check_json_has_every_body(spec_path, capsys):
         assert b["inner"] == list(body.inner) and b["outer"] == list(body.outer)
         assert b["parent"] == joint.parent
         assert b["joint"]["type"] == joint.kind and b["joint"]["default_angle_deg"] == joint.default_angle
+        assert b["joint"]["dof"] == {"fixed": 0, "revolute": 1}[joint.kind]
 
 
 def test_check_two_systems(two_systems, capsys):

@@ -552,12 +552,14 @@ def test_a_bad_statement_in_a_body_function(statement, message):
 
 
 def test_bad_joint_type():
-    text = edit("revolute(leftShin.knee", "prismatic(leftShin.knee")
-    only(text, "unknown joint type 'prismatic'; the language has fixed and revolute joints", "prismatic")
+    text = edit("revolute(leftShin.knee", "screw(leftShin.knee")
+    only(text, "unknown joint type 'screw'; the language has fixed, revolute, spherical and prismatic joints",
+         "screw")
     text = edit("revolute(leftShin.knee", "revolut(leftShin.knee")
     only(
         text,
-        "unknown joint type 'revolut' (did you mean 'revolute'?); the language has fixed and revolute joints",
+        "unknown joint type 'revolut' (did you mean 'revolute'?); the language has fixed, revolute, spherical "
+        "and prismatic joints",
         "revolut(",
     )
 
@@ -586,7 +588,7 @@ def test_every_error_is_reported_in_one_run_sorted_by_position():
     text = edit("fac*length);", "fac*lenght);", text)  # unknown variable (in a function)
     text = edit("outerLam(0.25, 0.125, 0.125);", "outerLam(0.25, 0.05, 0.125);", text)  # not enclosing
     text = edit("leftThigh.knee, 20", "leftThigh.kne, 20", text)  # unknown bvec
-    text = edit("revolute(pelvis.leftHip", "prismatic(pelvis.leftHip", text)  # bad joint type
+    text = edit("revolute(pelvis.leftHip", "screw(pelvis.leftHip", text)  # bad joint type
     ds = [d for d in diagnostics(text) if d.severity == "error"]
     got = [(d.line, d.column) for d in ds]
     assert got == sorted(got)
@@ -594,7 +596,7 @@ def test_every_error_is_reported_in_one_run_sorted_by_position():
         where(text, "fac", 1),
         where(text, "lenght"),
         where(text, "outerLam(0.25, 0.05"),
-        where(text, "prismatic"),
+        where(text, "screw"),
         where(text, "kne,"),
     ]
     assert "unknown variable 'lenght'" in ds[1].message
@@ -609,7 +611,7 @@ def test_one_mistake_gives_one_message():
         edit("Leg leftShin(0.4, true)", "Leg leftShin(0.4, 1)"),  # no 'unknown body leftShin'
         edit("Leg leftShin", "Lge leftShin"),
         edit("Leg leftShin(0.4, true)", "Leg leftShin(0.4)"),
-        edit("revolute(pelvis.leftHip", "prismatic(pelvis.leftHip"),  # no 'no path' echo
+        edit("revolute(pelvis.leftHip", "screw(pelvis.leftHip"),  # no 'no path' echo
         edit("Leg leftShin(0.4, true);", "Leg leftShin(0.4, true);\n    Leg leftShin(0.4, true);"),
     ]
     for text in cases:
