@@ -58,10 +58,12 @@ def test_check_prints_the_tree_and_the_dof(spec_path, capsys):
     out = capsys.readouterr().out
     spec = kms2pin.parse(spec_path)
     (system,) = spec.systems
-    fixed = sum(j.kind == "fixed" for j in system.joints)
+    count = {kind: sum(j.kind == kind for j in system.joints) for kind in ("revolute", "spherical", "prismatic", "fixed")}
+    dof = count["revolute"] + 3 * count["spherical"] + count["prismatic"]
+    shown = [k for k, n in count.items() if n or k in ("revolute", "fixed")]
     assert out.splitlines()[0] == (
         f"{spec_path}: rigidBodySystem '{system.name}': {len(system.bodies)} bodies, "
-        f"{system.dof} degrees of freedom ({system.dof} revolute, {fixed} fixed joints)"
+        f"{dof} degrees of freedom ({', '.join(f'{count[k]} {k}' for k in shown)} joints)"
     )
     assert out.splitlines()[1] == "inertial frame"
     for body in system.bodies:
@@ -89,7 +91,7 @@ def test_check_json_has_every_body(spec_path, capsys):
         assert b["inner"] == list(body.inner) and b["outer"] == list(body.outer)
         assert b["parent"] == joint.parent
         assert b["joint"]["type"] == joint.kind and b["joint"]["default_angle_deg"] == joint.default_angle
-        assert b["joint"]["dof"] == {"fixed": 0, "revolute": 1}[joint.kind]
+        assert b["joint"]["dof"] == {"fixed": 0, "revolute": 1, "spherical": 3, "prismatic": 1}[joint.kind]
 
 
 def test_check_two_systems(two_systems, capsys):
@@ -124,9 +126,10 @@ def test_export_writes_urdf_srdf_and_mesh(spec_path, tmp_path, capsys):
     assert (out / f"{system.name}.urdf").read_text() == robot.urdf
     assert (out / f"{system.name}.srdf").read_text() == robot.srdf
     model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"))
-    assert model.nq == robot.nq
+    assert model.nq == robot.nv  # one URDF joint per degree of freedom (three per spherical joint)
     links = {link.get("name") for link in ET.parse(out / f"{system.name}.urdf").getroot().iter("link")}
-    assert links == {"world", *robot.bodies}
+    between = {f"{j.name}_{a}_link" for j in system.joints if j.kind == "spherical" for a in "xy"}
+    assert links == {"world", *robot.bodies, *between}
     assert (out / "meshes" / "unit_sphere.obj").read_text().startswith("# unit sphere")
 
 
@@ -162,11 +165,11 @@ def test_export_root_free_has_no_world_link(spec_path, tmp_path, capsys):
     urdf = ET.parse(out / f"{system.name}.urdf").getroot()
     assert "world" not in {link.get("name") for link in urdf.iter("link")}
     assert all(j.find("parent").get("link") != "world" for j in urdf.iter("joint"))
-    assert len(list(urdf.iter("joint"))) == len(system.joints) - 1
+    assert len(list(urdf.iter("joint"))) == sum(3 if j.kind == "spherical" else 1 for j in system.joints[1:])
     srdf = ET.parse(out / f"{system.name}.srdf").getroot()
     assert system.joints[0].name not in {j.get("name") for j in srdf.iter("joint")}
     model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"), pin.JointModelFreeFlyer())
-    assert model.nq == kms2pin.load(spec_path, root="free").nq
+    assert model.nv == kms2pin.load(spec_path, root="free").nv
 
 
 def test_export_on_a_model_error_writes_nothing(broken, tmp_path, capsys):

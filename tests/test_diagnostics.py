@@ -564,6 +564,48 @@ def test_bad_joint_type():
     )
 
 
+@pytest.mark.parametrize(
+    "joint, message, needle, nth",
+    [
+        ("spherical(leftShin.knee, leftThigh.knee, 20)",
+         "constraint spherical(a, b[, rx, ry, rz]) takes 2 or 5 arguments, not 3", "constraint spherical", 0),
+        ("spherical(leftShin.knee, leftThigh.knee, 1, 2, 3, 4)",
+         "constraint spherical(a, b[, rx, ry, rz]) takes 2 or 5 arguments, not 6", "constraint spherical", 0),
+        ("spherical(leftShin.knee, leftThigh.knee, 1, true, 3)",
+         "a rotation vector component must be a double (degrees), not bool", "true", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0.1, 0)",
+         "constraint prismatic(a, b[, offset[, lower, upper]]) takes 2, 3 or 5 arguments, not 4",
+         "constraint prismatic", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, false)",
+         "a joint offset must be a double (spec length units), not bool", "false", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0, 0, true)",
+         "an upper joint limit must be a double (spec length units), not bool", "true", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0, 0.5, 0.5)",
+         "the lower joint limit (0.5) must be below the upper one (0.5); a joint that cannot move is "
+         "constraint fixed(a, b)", "0.5, 0.5", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0.7, -0.5, 0.5)",
+         "the default offset 0.7 is outside the joint limits -0.5..0.5", "0.7", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, 2e6)",
+         "a prismatic offset or limit must be at most 1e+06 in size, not 2e+06", "2e6", 0),
+    ],
+    ids=["spherical-3-args", "spherical-6-args", "spherical-bool", "prismatic-4-args", "prismatic-bool-offset",
+         "prismatic-bool-limit", "prismatic-lower-not-below-upper", "prismatic-offset-outside", "prismatic-huge"],
+)
+def test_bad_spherical_and_prismatic_joints(joint, message, needle, nth):
+    """Each mistake in the new joints' arguments is located at its argument (or the
+    constraint), as the revolute joint's are."""
+    text = edit("revolute(leftShin.knee, leftThigh.knee, 20)", joint)
+    only(text, message, needle, nth)
+
+
+def test_a_zero_orient_on_a_prismatic_joint_is_located():
+    text = edit("revolute(leftShin.knee, leftThigh.knee, 20)", "prismatic(leftShin.knee, leftThigh.knee, 0.1)")
+    text = edit("            pos(0.1, -0.1, 0);\n            orient(-1, 0, 0);",
+                "            pos(0.1, -0.1, 0);\n            orient(0, 0, 0);", text)
+    only(text, "orient vector of 'leftHip' of body 'pelvis' is zero; a bound vector needs a direction",
+         "orient(0, 0, 0)")
+
+
 def test_bad_joint_arguments():
     text = edit("leftThigh.knee, 20);", "leftThigh.knee, true);")
     only(text, "a joint angle must be a double (degrees), not bool", "true", nth=-1)
