@@ -329,3 +329,33 @@ def test_a_thousand_body_chain_compiles_exports_and_loads(tmp_path, capsys):
     robot = kms2pin.load(path)  # without Pinocchio's Data, which grows as nv^3 (60 GB here)
     assert robot.nq == 1000 and robot.model.parents[1000] == 999 and "data" not in vars(robot)
     assert len(ET.parse(tmp_path / "out" / "chain.urdf").getroot().findall("joint")) == 1000
+
+
+def test_the_human_has_the_proportions_of_the_anthropometric_table():
+    """specs/human.kms against the Drillis and Contini table (fractions of the height H,
+    anatomical position: straight knees and elbows, arms down): standing height, joint
+    heights above the floor and foot length, each within 1 % of H."""
+    robot = kms2pin.load(SPECS / "human.kms")
+    straight = ("leftShin_knee=0 rightShin_knee=0 leftForeArm_elbow=0 rightForeArm_elbow=0 "
+                "leftUpperArm_shoulder_z=0 rightUpperArm_shoulder_z=0")
+    q = parse_pose(robot, straight)
+    poses = {n: (M.translation, M.rotation) for n, M in zip(robot.bodies, robot.body_poses(q))}
+    extent = {n: np.abs(R) @ robot.inner(n) for n, (_, R) in poses.items()}  # half box sizes
+    floor = min(p[1] - extent[n][1] for n, (p, _) in poses.items())
+    crown = max(p[1] + extent[n][1] for n, (p, _) in poses.items())
+    H = 1.75
+    assert crown - floor == pytest.approx(H, abs=0.01 * H)
+
+    def height(body: str) -> float:
+        """Height above the floor of the joint point of ``body`` to its parent."""
+        p, R = poses[body]
+        return float((p + R @ np.asarray(robot.system.joint_of(body).child_bvec.pos))[1] - floor)
+
+    table = {"leftThigh": 0.530, "rightShin": 0.285, "leftFoot": 0.039, "rightUpperArm": 0.818,
+             "leftForeArm": 0.630, "rightHand": 0.485}  # hip, knee, ankle, shoulder, elbow, wrist
+    for body, fraction in table.items():
+        assert height(body) == pytest.approx(fraction * H, abs=0.01 * H), body
+    foot = 2 * robot.inner("leftFoot")[2]
+    assert foot == pytest.approx(0.152 * H, abs=0.01 * H)
+    # left at -x: the subject faces -z with y up, so its right hand side is +x
+    assert poses["leftHand"][0][0] < 0 < poses["rightHand"][0][0]
