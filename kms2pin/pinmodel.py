@@ -95,8 +95,9 @@ def _add_joint(model: pin.Model, system: System, joint: Joint, parent_frame: int
     return model.addBodyFrame(joint.child, jid, body_in_joint, fid)
 
 
-def build_model(system: System, free_root: bool = False) -> pin.Model:
-    """The Pinocchio model of ``system`` (see the module docstring).  With ``free_root`` the
+def build_model(system: System, free_root: bool = False) -> tuple[pin.Model, dict[str, int]]:
+    """The Pinocchio model of ``system`` (see the module docstring) and each body's BODY
+    frame index (``Model.getFrameId`` searches every frame).  With ``free_root`` the
     joint to the inertial frame is replaced by a free flyer ``root_joint`` placing the
     root body's link frame (its joint point, with its axes)."""
     model = pin.Model()
@@ -112,11 +113,12 @@ def build_model(system: System, free_root: bool = False) -> pin.Model:
         fid = model.addJointFrame(jid, 0)
         model.appendBodyToJoint(jid, _inertia(system, top), pin.SE3.Identity())
         top_frame = model.addBodyFrame(top, jid, pin.SE3.Identity(), fid)
+        frames = {top: top_frame}
     else:
-        top, top_frame = None, model.addBodyFrame(WORLD, 0, pin.SE3.Identity(), 0)
+        top, top_frame, frames = None, model.addBodyFrame(WORLD, 0, pin.SE3.Identity(), 0), {}
     stack = [(j, top_frame) for j in reversed(children.get(top, []))]
     while stack:  # depth first (no recursion), each body's children in sorted order
         joint, parent_frame = stack.pop()
-        frame = _add_joint(model, system, joint, parent_frame)
+        frame = frames[joint.child] = _add_joint(model, system, joint, parent_frame)
         stack.extend((k, frame) for k in reversed(children.get(joint.child, [])))
-    return model
+    return model, frames

@@ -62,6 +62,18 @@ def _quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
     return pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
 
 
+def check_free_root(system: System) -> None:
+    """Raise RobotError unless ``system`` has exactly one joint to the inertial frame (the
+    one ``root="free"`` replaces by a free flyer)."""
+    anchored = [j.child for j in system.children(None)]
+    if len(anchored) != 1:
+        raise RobotError(
+            f"root='free' replaces the joint to the inertial frame by a free flyer, but "
+            f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
+            "use root='spec' or keep one"
+        )
+
+
 def mesh_package_dir() -> str:
     """Folder holding ``meshes/unit_sphere.obj`` for Pinocchio's ``package_dirs``."""
     return str(resources.files("kms2pin") / "data")
@@ -106,20 +118,15 @@ class Robot:
         self.system = system
         self.root = root
         free = root == "free"
-        anchored = [j.child for j in system.joints if j.parent is None]
-        if free and len(anchored) != 1:
-            raise RobotError(
-                f"root='free' replaces the joint to the inertial frame by a free flyer, but "
-                f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
-                "use root='spec' or keep one"
-            )
+        if free:
+            check_free_root(system)
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
         self.srdf = to_srdf(system, source, free_root=free)
-        self.model = build_model(system, free)
+        self.model, links = build_model(system, free)
         self.bodies = tuple(b.name for b in system.bodies)
         self._index = {n: i for i, n in enumerate(self.bodies)}
-        self.frame_ids = tuple(self._add_centre_frame(b) for b in self.bodies)
+        self.frame_ids = tuple(self._add_centre_frame(b, links[b]) for b in self.bodies)
         self.joint_names = tuple(self.model.names[1:])
         self.joints = self._joint_coordinates()
         self.coordinate_names = tuple(n for j in self.joints for n in j.names)
@@ -151,8 +158,8 @@ class Robot:
         validate (see :meth:`forward` for the checks of a single ``q``)."""
         return np.clip(q, self.lower_limits, self.upper_limits)
 
-    def _add_centre_frame(self, body: str) -> int:
-        link = self.model.getFrameId(body, pin.FrameType.BODY)
+    def _add_centre_frame(self, body: str, link: int) -> int:
+        """Add the OP_FRAME ``<body>_centre`` below ``body``'s BODY frame ``link``."""
         frame = self.model.frames[link]
         centre = -np.asarray(self.system.joint_of(body).child_bvec.pos)
         placement = frame.placement * pin.SE3(np.eye(3), centre)

@@ -324,7 +324,11 @@ def test_a_thousand_body_chain_compiles_exports_and_loads(tmp_path, capsys):
     path = tmp_path / "chain.kms"
     path.write_text(chain_spec(1000))
     assert main(["check", str(path)]) == 0
-    assert "1000 bodies, 1000 degrees of freedom" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "1000 bodies, 1000 degrees of freedom" in out
+    lines = out.splitlines()
+    assert len(lines) == 1002 and lines[-1].strip().startswith("└─ (depth 1000) b999  [revolute")
+    assert max(map(len, lines)) < 200  # the indentation stops growing (else 3000 spaces)
     assert main(["export", str(path), "-o", str(tmp_path / "out")]) == 0
     robot = kms2pin.load(path)  # without Pinocchio's Data, which grows as nv^3 (60 GB here)
     assert robot.nq == 1000 and robot.model.parents[1000] == 999 and "data" not in vars(robot)

@@ -81,15 +81,22 @@ def _rest(j: Joint) -> str:
     return ""
 
 
+#: Deeper bodies are drawn at this depth, with their depth written out: the indentation of a
+#: long chain would otherwise grow with its square (a 10000-body chain: 150 million spaces).
+MAX_INDENT = 32
+
+
 def _tree(system: System) -> list[str]:
     lines = ["inertial frame"]
-    stack = [(j, "", k == 0) for k, j in enumerate(reversed(system.children(None)))]
+    stack = [(j, "", k == 0, 1) for k, j in enumerate(reversed(system.children(None)))]
     while stack:  # depth first without recursion (chains of any length)
-        j, prefix, last = stack.pop()
+        j, prefix, last, depth = stack.pop()
         axis = f"axis {_vec(j.parent_bvec.orient)} in {j.parent or 'world'}"
-        lines.append(f"{prefix}{'└─ ' if last else '├─ '}{j.child}  [{j.kind} '{j.name}', {j.dof} DoF, {axis}{_rest(j)}]")
-        inner = prefix + ("   " if last else "│  ")
-        stack.extend((k, inner, n == 0) for n, k in enumerate(reversed(system.children(j.child))))
+        deep = f"(depth {depth}) " if depth > MAX_INDENT else ""
+        lines.append(f"{prefix}{'└─ ' if last else '├─ '}{deep}{j.child}  "
+                     f"[{j.kind} '{j.name}', {j.dof} DoF, {axis}{_rest(j)}]")
+        inner = prefix + ("   " if last else "│  ") if depth < MAX_INDENT else prefix
+        stack.extend((k, inner, n == 0, depth + 1) for n, k in enumerate(reversed(system.children(j.child))))
     return lines
 
 

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from ..mesh import MESH_NAME, sphere_obj
-from ..robot import Robot
-from ..urdf import MESH_DIR
+from ..robot import check_free_root
+from ..urdf import MESH_DIR, to_srdf, to_urdf
 from ._common import add_spec_argument, read_model, write_outputs
 
 NAME = "export"
@@ -27,9 +28,11 @@ def run(args: argparse.Namespace) -> int:
     systems = [spec.system(args.system)] if args.system else list(spec.systems)
     out = Path(args.output)
     files: dict[Path, str] = {out / MESH_DIR / MESH_NAME: sphere_obj()}
-    for system in systems:
-        robot = Robot(spec, system, args.root)  # loading in Pinocchio validates the URDF
-        files[out / f"{system.name}.urdf"] = robot.urdf
-        files[out / f"{system.name}.srdf"] = robot.srdf
+    source = os.path.basename(spec.path)
+    for system in systems:  # text only: no Pinocchio model (its construction grows as n^2)
+        if args.root == "free":
+            check_free_root(system)
+        files[out / f"{system.name}.urdf"] = to_urdf(system, source, free_root=args.root == "free")
+        files[out / f"{system.name}.srdf"] = to_srdf(system, source, free_root=args.root == "free")
     write_outputs(files, out)
     return 0
