@@ -276,27 +276,34 @@ class Robot:
             raise RobotError(f"q must have shape ({self.model.nq},) for '{self.system.name}', not {q.shape}")
         if not np.isfinite(q).all():
             raise RobotError(self._non_finite_message(q))
-        copied = False
-        for j in self._quaternion_joints:
-            a = j.idx_q + (3 if j.kind == "free" else 0)
-            n2 = float(q[a : a + 4] @ q[a : a + 4])
-            if abs(n2 - 1.0) > _UNIT_TOL:
-                norm = math.sqrt(n2)
-                if norm < _ZERO_NORM:
-                    whose = "the free root's quaternion" if j.kind == "free" else f"the quaternion of joint '{j.name}',"
-                    raise RobotError(
-                        f"{whose} q[{a}:{a + 4}] = {q[a : a + 4].tolist()} (x, y, z, w; scalar last) of "
-                        f"'{self.system.name}' has zero norm ({norm:.3g}); it must be a non-zero quaternion, "
-                        "e.g. [0, 0, 0, 1] for no rotation"
-                    )
-                if not copied:
-                    q, copied = q.copy(), True
-                q[a : a + 4] /= norm
+        starts, blocks = self._quaternions
+        if not len(starts):
+            return q
+        n2 = np.einsum("ij,ij->i", q[blocks], q[blocks])
+        off = np.abs(n2 - 1.0) > _UNIT_TOL
+        if not off.any():  # the usual case: every quaternion unit
+            return q
+        q = q.copy()
+        for k in np.flatnonzero(off):
+            a, norm = int(starts[k]), math.sqrt(n2[k])
+            if norm < _ZERO_NORM:
+                j = next(j for j in self.joints if j.idx_q <= a < j.idx_q + j.nq)
+                whose = "the free root's quaternion" if j.kind == "free" else f"the quaternion of joint '{j.name}',"
+                raise RobotError(
+                    f"{whose} q[{a}:{a + 4}] = {q[a : a + 4].tolist()} (x, y, z, w; scalar last) of "
+                    f"'{self.system.name}' has zero norm ({norm:.3g}); it must be a non-zero quaternion, "
+                    "e.g. [0, 0, 0, 1] for no rotation"
+                )
+            q[a : a + 4] /= norm
         return q
 
     @cached_property
-    def _quaternion_joints(self) -> tuple[JointCoordinates, ...]:
-        return tuple(j for j in self.joints if j.kind in ("free", "spherical"))
+    def _quaternions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where q holds quaternions (a free root's, the spherical joints'): their first
+        indices (k,) and all four indices (k, 4)."""
+        starts = np.array([j.idx_q + (3 if j.kind == "free" else 0) for j in self.joints
+                           if j.kind in ("free", "spherical")], dtype=int)
+        return starts, starts[:, None] + np.arange(4)[None]
 
     def _non_finite_message(self, q: np.ndarray) -> str:
         k = int(np.flatnonzero(~np.isfinite(q))[0])

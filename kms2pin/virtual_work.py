@@ -199,7 +199,10 @@ class _Structure:
         if limited:
             iq = np.array([j.idx_q for j in limited])
             iv = np.array([j.idx_v for j in limited])
-            self.limits = (iq, iv, robot.lower_limits[iq], robot.upper_limits[iq])
+            lo, hi = robot.lower_limits[iq], robot.upper_limits[iq]
+            # (q indices, v indices, lower, upper, and the values at or below / above which a
+            # coordinate counts as at its limit)
+            self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
         self.multi_dof = any(model.joints[j].nv > 1 for j in range(1, model.njoints))
         self.upper = np.triu(np.ones((nv, nv)))
         self.strict_upper = np.triu(np.ones((nv, nv)), 1)
@@ -443,21 +446,17 @@ def static_update(
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
     """Gradient and Newton matrix with the joints that sit at a limit and are pushed
     outwards (descent -grad leaves the range) taken out: zero gradient, unit row and
-    column.  Returns them and the squared norm of the projected gradient."""
-    iq, iv, lo, hi = bounds
-    g = grad[iv]
-    span = hi - lo
-    active = ((q[iq] <= lo + 1e-12 * span) & (g > 0)) | ((q[iq] >= hi - 1e-12 * span) & (g < 0))
-    if not active.any():
-        return grad, H, float(grad @ grad)
-    a = iv[active]
-    grad = grad.copy()
-    grad[a] = 0.0
-    H = H.copy()
-    d = max(float(H.diagonal().max()), 1e-12)
-    H[a, :] = 0.0
-    H[:, a] = 0.0
-    H[a, a] = d
+    column, in place.  Returns them and the squared norm of the projected gradient."""
+    iq, iv, _, _, lo_at, hi_at = bounds
+    x, g = q[iq], grad[iv]
+    active = ((x <= lo_at) & (g > 0)) | ((x >= hi_at) & (g < 0))
+    if active.any():
+        a = iv[active]
+        grad[a] = 0.0
+        d = max(float(H.diagonal().max()), 1e-12)
+        H[a, :] = 0.0
+        H[:, a] = 0.0
+        H[a, a] = d
     return grad, H, float(grad @ grad)
 
 
