@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
@@ -234,6 +235,31 @@ class Robot:
                 q[:, j.idx_q : j.idx_q + j.nq] = block
             k += len(j.names)
         return q.reshape(*c.shape[:-1], self.model.nq)
+
+    def with_coordinates(self, q: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
+        """A copy of ``q`` with the named coordinates (:attr:`coordinate_names`, in the CSV's
+        units: degrees, spec length units, a free root's raw entries) set; a spherical joint's
+        angles left out keep their values at ``q``.  KeyError for an unknown name; the
+        values are not checked against limits."""
+        q = np.array(q, dtype=float)
+        where = self._coordinate_slots
+        spherical: dict[JointCoordinates, np.ndarray] = {}
+        for name, value in values.items():
+            j, k = where[name]
+            if j.kind == "spherical":
+                if j not in spherical:
+                    spherical[j] = np.degrees(xyz_angles(_quaternion_matrix(q[j.idx_q : j.idx_q + 4])))
+                spherical[j][k] = value
+            else:
+                q[j.idx_q + k] = math.radians(value) if j.kind == "revolute" else value
+        for j, angles in spherical.items():
+            q[j.idx_q : j.idx_q + 4] = pin.Quaternion(xyz_rotation(np.radians(angles))).coeffs()
+        return q
+
+    @cached_property
+    def _coordinate_slots(self) -> dict[str, tuple[JointCoordinates, int]]:
+        """Coordinate name -> (its joint, its position among the joint's coordinates)."""
+        return {n: (j, k) for j in self.joints for k, n in enumerate(j.names)}
 
     # ------------------------------------------------------------------ shapes
     def _body(self, name: str):

@@ -363,3 +363,23 @@ def test_the_human_has_the_proportions_of_the_anthropometric_table():
     assert foot == pytest.approx(0.152 * H, abs=0.01 * H)
     # left at -x: the subject faces -z with y up, so its right hand side is +x
     assert poses["leftHand"][0][0] < 0 < poses["rightHand"][0][0]
+
+
+def test_a_pose_file_sets_xyz_angles_and_offsets(mixed, tmp_path):
+    """track --init POSE.json names the trajectory CSV's coordinates."""
+    from kms2pin.errors import InputDataError
+    from kms2pin.video.init import read_pose_json
+
+    path = tmp_path / "pose.json"
+    path.write_text(json.dumps({"joints": {"b_ball_x": 10, "b_ball_z": -40, "c_slide": 0.3, "e_hinge": 15}}))
+    q = read_pose_json(mixed, path)
+    c = dict(zip(mixed.coordinate_names, mixed.coordinates(q)))
+    rest = dict(zip(mixed.coordinate_names, mixed.coordinates(mixed.q_rest)))
+    assert (c["b_ball_x"], c["b_ball_y"], c["b_ball_z"]) == pytest.approx((10, rest["b_ball_y"], -40))
+    assert (c["c_slide"], c["e_hinge"], c["d_slide"]) == pytest.approx((0.3, 15, rest["d_slide"]))
+    path.write_text(json.dumps({"joints": {"b_ball": 10}}))
+    with pytest.raises(InputDataError, match="joint 'b_ball' is spherical: give b_ball_x, b_ball_y and b_ball_z"):
+        read_pose_json(mixed, path)
+    path.write_text(json.dumps({"joints": {"c_slide": "far"}}))
+    with pytest.raises(InputDataError, match="value must be a number \\(spec length units\\)"):
+        read_pose_json(mixed, path)

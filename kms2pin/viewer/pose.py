@@ -15,10 +15,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from ..errors import did_you_mean
-from ..model import xyz_rotation
 from ..robot import Robot
 from .errors import PoseError
 
@@ -169,8 +167,7 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q: np.ndarray | N
     if pose is None:
         return q
     sliders = {s.name: s for s in joint_sliders(robot)}
-    spherical: dict[str, np.ndarray] = {}  # joint -> its X-Y-Z angles (deg), composed at the end
-    seen: set[str] = set()
+    values: dict[str, float] = {}
     for tok in _tokens(pose):
         name, sep, value = (part.strip() for part in tok.partition("="))
         if not sep or not name:
@@ -178,18 +175,7 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q: np.ndarray | N
         s = sliders.get(name)
         if s is None:
             raise _unknown(robot, name, sliders)
-        if name in seen:
+        if name in values:
             raise PoseError(f"joint '{name}' is given twice")
-        seen.add(name)
-        x = _value(s, value, robot)
-        if s.kind == "spherical":
-            if s.joint not in spherical:
-                spherical[s.joint] = np.array([v for n, v in slider_values(robot, q).items()
-                                               if sliders[n].joint == s.joint])
-            spherical[s.joint][s.axis] = x
-        else:
-            q[s.idx_q] = math.radians(x) if s.kind == "revolute" else x
-    for joint, angles in spherical.items():
-        idx = robot.model.joints[robot.model.getJointId(joint)].idx_q
-        q[idx : idx + 4] = pin.Quaternion(xyz_rotation(np.radians(angles))).coeffs()
-    return q
+        values[name] = _value(s, value, robot)
+    return robot.with_coordinates(q, values)
