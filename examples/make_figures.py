@@ -1,4 +1,4 @@
-"""Render the thesis-style figures of the four sample models into docs/figures/.
+"""Render the thesis-style figures of the sample models into docs/figures/.
 
 For each spec: the rest pose and one posed configuration, from the front and
 from the side (like thesis figures 3.1, 4.3, 4.6, 4.10, 4.11), a 2 x 2 overview
@@ -25,7 +25,7 @@ import kms2pin
 from kms2pin.viewer import RobotView, draw_static_update, parse_pose, read_png, render
 
 ROOT = Path(__file__).resolve().parents[1]
-SPECS = ("puma600", "lowerbody", "fullbody", "jplhand")
+SPECS = ("puma600", "lowerbody", "fullbody", "jplhand", "human", "gantry")
 POSES = {
     # thesis fig. 3.1: a second arm position
     "puma600": "base_inertialAnchor=-20 link1_lowerLink=140 link2_lowerLink=45 link3_lowerLink=-70",
@@ -40,11 +40,20 @@ POSES = {
     "jplhand": "lowFinger1_lowerJoint=90 midFinger1_lowerJoint=60 tip1_joint=60 "
                "lowFinger2_lowerJoint=90 midFinger2_lowerJoint=60 tip2_joint=60 "
                "lowThumb_lowerJoint=90 midThumb_lowerJoint=60 thumbTip_joint=60",
+    # ours: out of the sagittal plane (a spherical joint's X-Y-Z angles: x forwards, y about the
+    # bone, z towards the subject's right): the right arm raised sideways, the left one
+    # forwards, a step with the left leg, the right leg out to the side, trunk and head turned
+    "human": "rightUpperArm_shoulder_z=75 rightForeArm_elbow=20 leftUpperArm_shoulder_x=55 "
+             "leftForeArm_elbow=70 leftThigh_hip_x=45 leftShin_knee=55 leftFoot_ankle=15 "
+             "rightThigh_hip_z=20 torso_waist_y=20 torso_waist_x=8 head_neck_y=-30",
+    # ours: every slide moved, the tool turned
+    "gantry": "bridge_shoe=0.5 carriage_shoe=-0.3 quill_top=0.5 tool_wrist=60",
 }
 # static update: from rest towards the posed configuration, M-step targets perturbed
 STATIC_UPDATE_NOISE = {"angle_deg": 12.0, "fraction": 0.06}
 # the static-update motion is mostly in the y-z plane (legs, arms, planar PUMA links): look from the side
-STATIC_UPDATE_CAMERA = {"puma600": "side", "lowerbody": "side", "fullbody": "side", "jplhand": "iso"}
+STATIC_UPDATE_CAMERA = {"puma600": "side", "lowerbody": "side", "fullbody": "side", "jplhand": "iso",
+                        "human": "iso", "gantry": "iso"}
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:

@@ -14,7 +14,11 @@ The same tree as the URDF (:mod:`kms2pin.urdf`), in MuJoCo's terms:
   site ``<body>_centre``, Pinocchio's frame of that name.
 - Joints, one writer per kind of :class:`~kms2pin.model.Joint` (:data:`JOINT_WRITERS`):
   a revolute joint is a ``hinge`` about o_ji with a ``range`` (radians) only where the
-  spec gives limits; a fixed joint welds the body to its parent (no element).  A free
+  spec gives limits; a prismatic joint a ``slide`` along o_ji (ranged likewise); a
+  spherical joint a ``ball`` at the joint point, whose qpos (w, x, y, z) is the rotation
+  in the child body's frame at alignment, R_alignᵀ R R_align for the rotation R in the
+  parent body's axes (Pinocchio's quaternion of the joint); a fixed joint welds the body
+  to its parent (no element).  A free
   root is ``<freejoint name="root_joint"/>`` on a root body placed at its rest pose
   (a free joint's qpos is the body's world pose: x y z, then w x y z).
 - A keyframe ``rest`` holds the spec's rest pose; ``<contact><exclude>`` the adjacent
@@ -29,7 +33,7 @@ from collections.abc import Callable
 import numpy as np
 import pinocchio as pin
 
-from .model import Body, Joint, System
+from .model import Body, Joint, System, alignment_matrix, rotation_vector_matrix
 from .urdf import (
     DENSITY,
     INNER_RGBA,
@@ -55,11 +59,35 @@ def _hinge(joint: Joint) -> tuple[list[str], list[float]]:
     ]
 
 
+def _slide(joint: Joint) -> tuple[list[str], list[float]]:
+    """A prismatic joint: a slide along o_ji in the child frame, ranged where the spec limits it."""
+    span = "" if joint.limits is None else f' range="{vec(joint.limits)}"'
+    return [f'<joint name={attr(joint.name)} type="slide" axis="{vec(joint.child_bvec.orient)}"{span}/>'], [
+        joint.default_offset
+    ]
+
+
+def ball_alignment(joint: Joint) -> np.ndarray:
+    """R_align of a spherical joint (eq. 2.12): its ball's qpos B is the rotation R (in the
+    parent body's axes, Pinocchio's) seen in the child body's aligned frame, B = R_alignᵀ R R_align."""
+    return alignment_matrix(np.asarray(joint.parent_bvec.orient), np.asarray(joint.child_bvec.orient))
+
+
+def _ball(joint: Joint) -> tuple[list[str], list[float]]:
+    """A spherical joint: a ball at the joint point; its rest qpos (w x y z) is
+    R_alignᵀ Exp(r) R_align (module docstring)."""
+    A = ball_alignment(joint)
+    q = pin.Quaternion(A.T @ rotation_vector_matrix(joint.default_rotation) @ A)
+    return [f'<joint name={attr(joint.name)} type="ball"/>'], [q.w, q.x, q.y, q.z]
+
+
 #: Per joint kind of the model: the MJCF elements inside the child body and the joint's
 #: rest qpos (MuJoCo's coordinates, in element order).
 JOINT_WRITERS: dict[str, Callable[[Joint], tuple[list[str], list[float]]]] = {
     "fixed": lambda joint: ([], []),
     "revolute": _hinge,
+    "prismatic": _slide,
+    "spherical": _ball,
 }
 
 

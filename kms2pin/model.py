@@ -12,7 +12,9 @@ one joint to its parent (``Joint.parent is None`` means the inertial frame) and
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -61,19 +63,30 @@ class Body:
     loc: Loc = Loc()
 
 
+#: Degrees of freedom of each joint type of the language.
+JOINT_DOF = {"fixed": 0, "revolute": 1, "spherical": 3, "prismatic": 1}
+
+
 @dataclass(frozen=True)
 class Joint:
-    """A fixed or revolute joint, oriented parent (lower) -> child (upper).
+    """A fixed, revolute, spherical or prismatic joint, oriented parent (lower) -> child (upper).
 
     ``parent`` is None for a joint to the inertial frame; then ``parent_bvec`` is
-    an inertial bvec.  ``default_angle`` (degrees) is a right-handed rotation of
-    the child about the parent end's axis (eq. 2.16); it is 0 for fixed joints.
-    ``limits`` (degrees) bound a revolute joint's angle when the spec gives them
-    (``revolute(a, b, angle, lower, upper)``, a kms2pin extension); None: no limits.
+    an inertial bvec.  The rest pose (kms2pin's extensions for the last two types):
+
+    * revolute: ``default_angle`` (degrees), a right-handed rotation of the child
+      about the parent end's axis (eq. 2.16);
+    * spherical: ``default_rotation`` (degrees), a rotation vector r in the parent
+      body's frame, R_ij = Exp(r) R_align;
+    * prismatic: ``default_offset`` (spec length units), the signed distance of the
+      child end's point from the parent end's along the parent end's axis.
+
+    ``limits`` bound a revolute joint's angle (degrees) or a prismatic joint's offset
+    (length units) when the spec gives them; None: no limits.
     """
 
     name: str
-    kind: str  # "fixed" | "revolute"
+    kind: str  # "fixed" | "revolute" | "spherical" | "prismatic"
     parent: str | None
     child: str
     parent_bvec: BoundVector
@@ -81,10 +94,17 @@ class Joint:
     default_angle: float = 0.0
     loc: Loc = Loc()
     limits: tuple[float, float] | None = None
+    default_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    default_offset: float = 0.0
 
     @property
     def parent_link(self) -> str:
         return self.parent if self.parent is not None else WORLD
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom: 0 fixed, 1 revolute or prismatic, 3 spherical."""
+        return JOINT_DOF[self.kind]
 
 
 @dataclass(frozen=True)
@@ -100,24 +120,36 @@ class System:
     def root(self) -> Body:
         return self.bodies[0]
 
+    @cached_property
+    def _by_name(self) -> dict[str, tuple[Body, Joint]]:
+        return {b.name: (b, j) for b, j in zip(self.bodies, self.joints)}
+
+    @cached_property
+    def _children(self) -> dict[str | None, list[Joint]]:
+        out: dict[str | None, list[Joint]] = {}
+        for j in self.joints:
+            out.setdefault(j.parent, []).append(j)
+        return out
+
     def body(self, name: str) -> Body:
-        for b in self.bodies:
-            if b.name == name:
-                return b
-        raise KeyError(name)
+        return self._by_name[name][0]
 
     def joint_of(self, body: str) -> Joint:
-        for j in self.joints:
-            if j.child == body:
-                return j
-        raise KeyError(body)
+        """The joint of ``body`` to its parent (KeyError for an unknown body)."""
+        return self._by_name[body][1]
 
     def children(self, body: str | None) -> list[Joint]:
-        return [j for j in self.joints if j.parent == body]
+        """The joints whose parent is ``body`` (None: the inertial frame), in spec order."""
+        return list(self._children.get(body, ()))
 
     @property
     def dof(self) -> int:
-        return sum(1 for j in self.joints if j.kind == "revolute")
+        """Degrees of freedom of the joints (the spec's root joint included)."""
+        return sum(j.dof for j in self.joints)
+
+    def count(self, kind: str) -> int:
+        """How many joints of type ``kind`` the system has."""
+        return sum(1 for j in self.joints if j.kind == kind)
 
 
 @dataclass(frozen=True)
@@ -188,3 +220,46 @@ def alignment_matrix(parent_axis: np.ndarray, child_axis: np.ndarray) -> np.ndar
             return np.eye(3)
         return axis_angle_matrix(perpendicular_axis(c), np.pi)
     return axis_angle_matrix(cross / n, np.arctan2(n, dot))
+
+
+def rotation_vector_matrix(r_deg) -> np.ndarray:
+    """Exp(r): rotation by |r| degrees about r/|r| (a rotation vector in degrees); I for r = 0."""
+    r = np.radians(np.asarray(r_deg, dtype=float))
+    angle = float(np.linalg.norm(r))
+    if angle == 0.0:
+        return np.eye(3)
+    return axis_angle_matrix(r / angle, angle)
+
+
+def rest_joint_transform(joint: Joint) -> tuple[np.ndarray, np.ndarray]:
+    """(R_ij, d) of ``joint`` at rest, in the parent body's frame: the child's rotation
+    relative to the parent (eq. 2.12, 2.16; Exp(r) R_align for a spherical joint) and
+    the child end's point relative to the parent end's (offset times the parent end's
+    axis for a prismatic joint, else zero)."""
+    o_ij = np.asarray(joint.parent_bvec.orient, dtype=float)
+    R = alignment_matrix(o_ij, np.asarray(joint.child_bvec.orient, dtype=float))
+    if joint.kind == "revolute":
+        R = axis_angle_matrix(o_ij, np.radians(joint.default_angle)) @ R
+    elif joint.kind == "spherical":
+        R = rotation_vector_matrix(joint.default_rotation) @ R
+    d = joint.default_offset * o_ij if joint.kind == "prismatic" else np.zeros(3)
+    return R, d
+
+
+def xyz_rotation(angles) -> np.ndarray:
+    """Rx(a) Ry(b) Rz(c) for ``angles`` = (a, b, c) in radians: intrinsic rotations about x,
+    then the new y, then the new z (a spherical joint's three URDF joints)."""
+    a, b, c = (float(x) for x in angles)
+    e = np.eye(3)
+    return axis_angle_matrix(e[0], a) @ axis_angle_matrix(e[1], b) @ axis_angle_matrix(e[2], c)
+
+
+def xyz_angles(R: np.ndarray) -> np.ndarray:
+    """The angles (a, b, c), radians, with ``xyz_rotation((a, b, c)) == R``: b in
+    [-pi/2, pi/2], a and c in (-pi, pi]; at the gimbal singularity (|b| = pi/2) c = 0."""
+    R = np.asarray(R, dtype=float)
+    cos_b = math.hypot(R[0, 0], R[0, 1])
+    b = math.atan2(R[0, 2], cos_b)
+    if cos_b < 1e-12:  # the gimbal singularity: only a + c or a - c is defined
+        return np.array([math.atan2(R[2, 1], R[1, 1]), b, 0.0])
+    return np.array([math.atan2(-R[1, 2], R[2, 2]), b, math.atan2(-R[0, 1], R[0, 0])])

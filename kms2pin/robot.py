@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
 
@@ -21,8 +23,9 @@ import pinocchio as pin
 
 from .errors import RobotError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
-from .model import ModelSpec, System
-from .urdf import centre_offset, root_rest_placement, to_srdf, to_urdf
+from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_angles, xyz_rotation
+from .pinmodel import build_model
+from .urdf import centre_offset, rest_values, to_srdf, to_urdf, urdf_number
 
 ROOTS = ("spec", "free")
 
@@ -36,6 +39,42 @@ _ROTATION_TOL = 1e-6
 _FREE_FLYER_COORDINATES = tuple(f"root_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))
 
 
+@dataclass(frozen=True)
+class JointCoordinates:
+    """One Pinocchio joint of a :class:`Robot` and its coordinates.
+
+    ``kind`` is ``"free"`` for a free-flyer root, else the spec joint's type (``spec``;
+    None for the free flyer); ``idx_q``, ``idx_v``, ``nq`` locate it in q and v;
+    ``names`` are its columns of a trajectory CSV (:meth:`Robot.coordinates`).
+    """
+
+    name: str
+    kind: str
+    idx_q: int
+    idx_v: int
+    nq: int
+    names: tuple[str, ...]
+    spec: Joint | None
+
+
+def _quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
+    """The rotation of a Pinocchio quaternion (x, y, z, w), normalized."""
+    x = np.asarray(xyzw, dtype=float)
+    return pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+
+
+def check_free_root(system: System) -> None:
+    """Raise RobotError unless ``system`` has exactly one joint to the inertial frame (the
+    one ``root="free"`` replaces by a free flyer)."""
+    anchored = [j.child for j in system.children(None)]
+    if len(anchored) != 1:
+        raise RobotError(
+            f"root='free' replaces the joint to the inertial frame by a free flyer, but "
+            f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
+            "use root='spec' or keep one"
+        )
+
+
 def mesh_package_dir() -> str:
     """Folder holding ``meshes/unit_sphere.obj`` for Pinocchio's ``package_dirs``."""
     return str(resources.files("kms2pin") / "data")
@@ -45,32 +84,32 @@ class Robot:
     """One rigid-body system of a spec, compiled to URDF and loaded in Pinocchio.
 
     Attributes:
-        model, data: Pinocchio model and data.  Each body has a BODY frame (its link,
-            at the joint to its parent) and an OP_FRAME ``"<body>_centre"`` at the
-            ellipsoid centre with the body axes.
-        urdf, srdf: the exported text (meshes referenced as ``meshes/unit_sphere.obj``).
-            :attr:`model` is built from the other flavour of the same URDF
-            (:mod:`kms2pin.urdf`): the same joints in the same order, but a joint the spec
-            leaves unlimited is revolute (one coordinate) where the exported URDF makes it
-            ``continuous`` (two in Pinocchio's parser: cos, sin), and a free root is the
-            free flyer ``root_joint`` either way.
+        model, data: Pinocchio model (built by :func:`kms2pin.pinmodel.build_model`) and
+            data (made on first use).  Each body has a BODY frame (its link, at the
+            joint to its parent) and an OP_FRAME ``"<body>_centre"`` at the ellipsoid
+            centre with the body axes.
+        urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
-        coordinate_names: one name per entry of ``q``: a free root's
-            ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``, then each
-            revolute joint's name (the columns of a trajectory CSV).
-        q_rest: the spec's rest configuration (default joint angles), a Pinocchio ``q``.
+        joints: a :class:`JointCoordinates` per Pinocchio joint, in ``q`` order.
+        coordinate_names: the columns of a trajectory CSV (:meth:`coordinates`): a free
+            root's ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``, then
+            each revolute or prismatic joint's name and a spherical joint's
+            ``<joint>_x, <joint>_y, <joint>_z`` (its URDF joints).
+        q_rest: the spec's rest configuration (default joint angles, rotations and
+            offsets), a Pinocchio ``q``; also ``model.referenceConfigurations["rest"]``.
         lower_limits, upper_limits: (nq,) bounds of ``q`` from the spec's joint limits
-            (radians); -inf / +inf where the spec gives none (the free flyer, and every
+            (radians for revolute joints, spec length units for prismatic ones); -inf /
+            +inf where the spec gives none (the free flyer, spherical joints, and every
             joint of the thesis's own models).
 
     Quaternion order: every ``q`` (and ``q_rest``) is Pinocchio's, so with
-    ``root="free"`` ``q[3:7]`` is the root's quaternion (x, y, z, w), scalar LAST; the
-    thesis's Euler parameters in :meth:`maximal_coordinates` are scalar FIRST
-    (theta0, theta1, theta2, theta3) = (w, x, y, z) (eq. 2.7).  Methods taking ``q``
-    raise RobotError for a wrong shape, a non-finite entry or a zero root quaternion,
-    and use a non-unit root quaternion divided by its norm (as ``pin.integrate`` would
-    give it).
+    ``root="free"`` ``q[3:7]`` is the root's quaternion (x, y, z, w), scalar LAST, and
+    a spherical joint's four entries are its quaternion (x, y, z, w); the thesis's
+    Euler parameters in :meth:`maximal_coordinates` are scalar FIRST (theta0, theta1,
+    theta2, theta3) = (w, x, y, z) (eq. 2.7).  Methods taking ``q`` raise RobotError
+    for a wrong shape, a non-finite entry or a zero quaternion, and use a non-unit
+    quaternion divided by its norm (as ``pin.integrate`` would give it).
     """
 
     def __init__(self, spec: ModelSpec, system: System, root: str = "spec") -> None:
@@ -80,37 +119,32 @@ class Robot:
         self.system = system
         self.root = root
         free = root == "free"
-        anchored = [j.child for j in system.joints if j.parent is None]
-        if free and len(anchored) != 1:
-            raise RobotError(
-                f"root='free' replaces the joint to the inertial frame by a free flyer, but "
-                f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
-                "use root='spec' or keep one"
-            )
+        if free:
+            check_free_root(system)
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
         self.srdf = to_srdf(system, source, free_root=free)
-        own = to_urdf(system, source, free_root=free, for_model=True)
-        if free:
-            self.model = pin.buildModelFromXML(own, pin.JointModelFreeFlyer())
-        else:
-            self.model = pin.buildModelFromXML(own)
+        self.model, links = build_model(system, free)
         self.bodies = tuple(b.name for b in system.bodies)
         self._index = {n: i for i, n in enumerate(self.bodies)}
-        self.frame_ids = tuple(self._add_centre_frame(b) for b in self.bodies)
-        self.data = self.model.createData()
+        self.frame_ids = tuple(self._add_centre_frame(b, links[b]) for b in self.bodies)
         self.joint_names = tuple(self.model.names[1:])
-        self.coordinate_names = self._coordinate_names()
-        pin.loadReferenceConfigurationsFromXML(self.model, self.srdf, False)
+        self.joints = self._joint_coordinates()
+        self.coordinate_names = tuple(n for j in self.joints for n in j.names)
         self.q_rest = self._rest_configuration()
+        self.model.referenceConfigurations["rest"] = self.q_rest.copy()
         self.lower_limits = np.full(self.model.nq, -np.inf)
         self.upper_limits = np.full(self.model.nq, np.inf)
-        by_name = {j.name: j for j in system.joints}
-        for jid in range(1, self.model.njoints):
-            j = by_name.get(self.model.names[jid])
-            if j is not None and j.limits is not None and self.model.joints[jid].nq == 1:
-                idx = self.model.joints[jid].idx_q
-                self.lower_limits[idx], self.upper_limits[idx] = np.radians(j.limits)
+        for j in self.joints:
+            if j.spec is not None and j.spec.limits is not None:
+                lo, hi = j.spec.limits
+                scale = math.pi / 180.0 if j.kind == "revolute" else 1.0
+                self.lower_limits[j.idx_q], self.upper_limits[j.idx_q] = lo * scale, hi * scale
+
+    @cached_property
+    def data(self) -> pin.Data:
+        """Pinocchio's ``Data`` of :attr:`model`, made on first use (its size grows with nv^2)."""
+        return self.model.createData()
 
     @property
     def has_limits(self) -> bool:
@@ -118,37 +152,113 @@ class Robot:
         return bool(np.isfinite(self.lower_limits).any())
 
     def clamp(self, q: np.ndarray) -> np.ndarray:
-        """``q`` with every limited joint angle clipped into the spec's limits.
+        """``q`` with every limited joint coordinate (a revolute angle, a prismatic offset)
+        clipped into the spec's limits.
 
         Pure element-wise clipping: broadcasts over (..., nq) arrays and does not
         validate (see :meth:`forward` for the checks of a single ``q``)."""
         return np.clip(q, self.lower_limits, self.upper_limits)
 
-    def _add_centre_frame(self, body: str) -> int:
-        link = self.model.getFrameId(body, pin.FrameType.BODY)
+    def _add_centre_frame(self, body: str, link: int) -> int:
+        """Add the OP_FRAME ``<body>_centre`` below ``body``'s BODY frame ``link``."""
         frame = self.model.frames[link]
         placement = frame.placement * pin.SE3(np.eye(3), centre_offset(self.system, body))
         return self.model.addFrame(
             pin.Frame(f"{body}_centre", frame.parentJoint, link, placement, pin.FrameType.OP_FRAME)
         )
 
-    def _coordinate_names(self) -> tuple[str, ...]:
-        names: list[str] = []
+    def _joint_coordinates(self) -> tuple[JointCoordinates, ...]:
+        by_name = {j.name: j for j in self.system.joints}
+        out = []
         for jid in range(1, self.model.njoints):
-            nq, name = self.model.joints[jid].nq, self.model.names[jid]
-            if nq == 7:
-                names += _FREE_FLYER_COORDINATES
-            elif nq == 1:
-                names.append(name)
-            else:  # pragma: no cover - the compiler makes only these joints
-                names += [f"{name}_{k}" for k in range(nq)]
-        return tuple(names)
+            jm, name = self.model.joints[jid], self.model.names[jid]
+            spec = by_name.get(name)
+            kind = "free" if spec is None else spec.kind
+            names = {"free": _FREE_FLYER_COORDINATES, "spherical": tuple(f"{name}_{a}" for a in "xyz")}
+            out.append(JointCoordinates(name, kind, jm.idx_q, jm.idx_v, jm.nq, names.get(kind, (name,)), spec))
+        return tuple(out)
 
     def _rest_configuration(self) -> np.ndarray:
-        q = np.array(self.model.referenceConfigurations["rest"], dtype=float)
-        if self.root == "free":  # exact (the SRDF holds it to 15 digits)
-            q[:7] = pin.SE3ToXYZQUAT(root_rest_placement(self.system))
+        """The spec's rest pose as a Pinocchio q: the SRDF's group state "rest" (its
+        numbers as written, :func:`kms2pin.urdf.rest_values`; a spherical joint's
+        quaternion from its three angles) and the root's rest pose for a free root."""
+        q = pin.neutral(self.model)
+        for j in self.joints:
+            if j.kind == "free":
+                R, d = rest_joint_transform(self.system.joints[0])
+                q[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.asarray(self.system.joints[0].parent_bvec.pos) + d))
+                continue
+            values = [urdf_number(v) for _, v in rest_values(j.spec)]
+            if j.kind == "spherical":
+                q[j.idx_q : j.idx_q + 4] = pin.Quaternion(xyz_rotation(values)).coeffs()
+            elif values:
+                q[j.idx_q] = values[0]
         return q
+
+    # ------------------------------------------------------------------ coordinates
+    def coordinates(self, q: np.ndarray) -> np.ndarray:
+        """Configurations ``q`` (nq,) or (T, nq) as the trajectory CSV's coordinates
+        (:attr:`coordinate_names`): a free root's 7 entries as they are, revolute angles
+        and a spherical joint's X-Y-Z angles (R = Rx Ry Rz, the URDF's three joints) in
+        degrees, prismatic offsets in spec length units.  Does not validate ``q``."""
+        q = np.asarray(q, dtype=float)
+        rows = q.reshape(-1, self.model.nq)
+        out = np.empty((len(rows), len(self.coordinate_names)))
+        c = 0
+        for j in self.joints:
+            block = rows[:, j.idx_q : j.idx_q + j.nq]
+            if j.kind == "spherical":
+                out[:, c : c + 3] = [np.degrees(xyz_angles(_quaternion_matrix(x))) for x in block]
+            elif j.kind == "revolute":
+                out[:, c] = np.degrees(block[:, 0])
+            else:
+                out[:, c : c + j.nq] = block
+            c += len(j.names)
+        return out.reshape(*q.shape[:-1], c)
+
+    def configuration(self, coordinates: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`coordinates`: (n_coordinates,) or (T, n_coordinates) CSV
+        coordinates to Pinocchio configurations (a spherical joint's quaternion from its
+        three angles).  Does not validate."""
+        c = np.asarray(coordinates, dtype=float)
+        rows = c.reshape(-1, len(self.coordinate_names))
+        q = np.empty((len(rows), self.model.nq))
+        k = 0
+        for j in self.joints:
+            block = rows[:, k : k + len(j.names)]
+            if j.kind == "spherical":
+                q[:, j.idx_q : j.idx_q + 4] = [pin.Quaternion(xyz_rotation(np.radians(a))).coeffs() for a in block]
+            elif j.kind == "revolute":
+                q[:, j.idx_q] = np.radians(block[:, 0])
+            else:
+                q[:, j.idx_q : j.idx_q + j.nq] = block
+            k += len(j.names)
+        return q.reshape(*c.shape[:-1], self.model.nq)
+
+    def with_coordinates(self, q: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
+        """A copy of ``q`` with the named coordinates (:attr:`coordinate_names`, in the CSV's
+        units: degrees, spec length units, a free root's raw entries) set; a spherical joint's
+        angles left out keep their values at ``q``.  KeyError for an unknown name; the
+        values are not checked against limits."""
+        q = np.array(q, dtype=float)
+        where = self._coordinate_slots
+        spherical: dict[JointCoordinates, np.ndarray] = {}
+        for name, value in values.items():
+            j, k = where[name]
+            if j.kind == "spherical":
+                if j not in spherical:
+                    spherical[j] = np.degrees(xyz_angles(_quaternion_matrix(q[j.idx_q : j.idx_q + 4])))
+                spherical[j][k] = value
+            else:
+                q[j.idx_q + k] = math.radians(value) if j.kind == "revolute" else value
+        for j, angles in spherical.items():
+            q[j.idx_q : j.idx_q + 4] = pin.Quaternion(xyz_rotation(np.radians(angles))).coeffs()
+        return q
+
+    @cached_property
+    def _coordinate_slots(self) -> dict[str, tuple[JointCoordinates, int]]:
+        """Coordinate name -> (its joint, its position among the joint's coordinates)."""
+        return {n: (j, k) for j in self.joints for k, n in enumerate(j.names)}
 
     # ------------------------------------------------------------------ shapes
     def _body(self, name: str):
@@ -182,37 +292,55 @@ class Robot:
         """``q`` as a float (nq,) array, checked once for every method taking a ``q``.
 
         Raises RobotError for a wrong shape, for the first non-finite coordinate (named
-        with its joint) and for a free root quaternion ``q[3:7]`` (x, y, z, w) of zero
-        norm; a non-unit one is divided by its norm, on a copy.
+        with its joint) and for a quaternion (x, y, z, w) of zero norm (a free root's
+        ``q[3:7]``, a spherical joint's four entries); a non-unit one is divided by its
+        norm, on a copy.
         """
         q = np.asarray(q, dtype=float)
         if q.shape != (self.model.nq,):
             raise RobotError(f"q must have shape ({self.model.nq},) for '{self.system.name}', not {q.shape}")
         if not np.isfinite(q).all():
             raise RobotError(self._non_finite_message(q))
-        if self.root == "free":
-            n2 = float(q[3:7] @ q[3:7])
-            if abs(n2 - 1.0) > _UNIT_TOL:
-                norm = math.sqrt(n2)
-                if norm < _ZERO_NORM:
-                    raise RobotError(
-                        f"the free root's quaternion q[3:7] = {q[3:7].tolist()} (x, y, z, w; scalar last) of "
-                        f"'{self.system.name}' has zero norm ({norm:.3g}); it must be a non-zero quaternion, "
-                        "e.g. [0, 0, 0, 1] for no rotation"
-                    )
-                q = q.copy()
-                q[3:7] /= norm
+        starts, blocks = self._quaternions
+        if not len(starts):
+            return q
+        n2 = np.einsum("ij,ij->i", q[blocks], q[blocks])
+        off = np.abs(n2 - 1.0) > _UNIT_TOL
+        if not off.any():  # the usual case: every quaternion unit
+            return q
+        q = q.copy()
+        for k in np.flatnonzero(off):
+            a, norm = int(starts[k]), math.sqrt(n2[k])
+            if norm < _ZERO_NORM:
+                j = next(j for j in self.joints if j.idx_q <= a < j.idx_q + j.nq)
+                whose = "the free root's quaternion" if j.kind == "free" else f"the quaternion of joint '{j.name}',"
+                raise RobotError(
+                    f"{whose} q[{a}:{a + 4}] = {q[a : a + 4].tolist()} (x, y, z, w; scalar last) of "
+                    f"'{self.system.name}' has zero norm ({norm:.3g}); it must be a non-zero quaternion, "
+                    "e.g. [0, 0, 0, 1] for no rotation"
+                )
+            q[a : a + 4] /= norm
         return q
+
+    @cached_property
+    def _quaternions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where q holds quaternions (a free root's, the spherical joints'): their first
+        indices (k,) and all four indices (k, 4)."""
+        starts = np.array([j.idx_q + (3 if j.kind == "free" else 0) for j in self.joints
+                           if j.kind in ("free", "spherical")], dtype=int)
+        return starts, starts[:, None] + np.arange(4)[None]
 
     def _non_finite_message(self, q: np.ndarray) -> str:
         k = int(np.flatnonzero(~np.isfinite(q))[0])
-        name = self.coordinate_names[k]
-        if self.root == "free" and k < 7:  # root_qx -> "quaternion x of joint 'root_joint'"
-            part = name.removeprefix("root_")
+        j = next(j for j in self.joints if j.idx_q <= k < j.idx_q + j.nq)
+        if j.kind == "free":  # root_qx -> "quaternion x of joint 'root_joint'"
+            part = j.names[k - j.idx_q].removeprefix("root_")
             part = f"quaternion {part[1:]}" if part.startswith("q") else part
-            joint = f"{part} of joint '{self.joint_names[0]}'"
+            joint = f"{part} of joint '{j.name}'"
+        elif j.kind == "spherical":
+            joint = f"quaternion {'xyzw'[k - j.idx_q]} of joint '{j.name}'"
         else:
-            joint = f"joint '{name}'"
+            joint = f"joint '{j.name}'"
         return f"q[{k}] ({joint}) of '{self.system.name}' is {q[k]}; every coordinate of q must be finite"
 
     def forward(self, q: np.ndarray) -> None:
@@ -264,10 +392,21 @@ class Robot:
         )
 
     def random_configuration(self, rng: np.random.Generator, spread_deg: float = 180.0) -> np.ndarray:
-        """Rest pose (a Pinocchio ``q``) with every revolute angle moved uniformly within +-spread_deg."""
+        """Rest pose (a Pinocchio ``q``) with every revolute angle moved uniformly within
+        +-spread_deg, every spherical joint turned by up to spread_deg about a uniformly
+        random axis and every prismatic offset uniform within its limits (at rest without
+        limits); the free root stays at rest."""
         q = self.q_rest.copy()
-        start = 7 if self.root == "free" else 0
-        q[start:] += np.radians(rng.uniform(-spread_deg, spread_deg, self.model.nq - start))
+        for j in self.joints:
+            if j.kind == "revolute":
+                q[j.idx_q] += math.radians(rng.uniform(-spread_deg, spread_deg))
+            elif j.kind == "spherical":
+                axis = rng.normal(size=3)
+                turn = axis / np.linalg.norm(axis) * math.radians(rng.uniform(0.0, spread_deg))
+                R = pin.exp3(turn) @ _quaternion_matrix(q[j.idx_q : j.idx_q + 4])
+                q[j.idx_q : j.idx_q + 4] = pin.Quaternion(R).coeffs()
+            elif j.kind == "prismatic" and np.isfinite(self.lower_limits[j.idx_q]):
+                q[j.idx_q] = rng.uniform(self.lower_limits[j.idx_q], self.upper_limits[j.idx_q])
         return q
 
     # ------------------------------------------------------------------ geometry

@@ -13,15 +13,23 @@ theta the child's orientation is Rot(o_ij, theta) R_align = R_align Rot(o_ji, th
 (eq. 2.16) and its centre obeys eq. 2.14.  Angle 0 means the axes are aligned;
 the spec's default angles are the SRDF group state "rest".
 
-Two flavours of the same tree (``for_model``).  The exported URDF is for other tools:
-a revolute joint the spec leaves unlimited is ``continuous``, every movable joint has
-placeholder effort and velocity limits (:data:`EFFORT`, :data:`VELOCITY`: the spec has
-no dynamics), and a free root is a ``floating`` joint :data:`ROOT_JOINT` from ``world``
-whose rest placement is in the SRDF's ``rest`` state.  kms2pin's own Pinocchio model
-(:class:`~kms2pin.robot.Robot`) is built from the other flavour: unlimited joints are
-``revolute`` with nominal +-pi limits (one coordinate each, where Pinocchio's parser
-makes a ``continuous`` joint two: cos, sin) and a free root is left to the caller's
-free flyer.  Both have the same joints in the same order.
+A prismatic joint has the same origin and axis; at offset d the child end's point is
+d o_ij from the parent end's.  URDF has no spherical joint: one is three revolute
+joints ``<joint>_x``, ``_y``, ``_z`` about x, then the new y, then the new z of the
+parent's axes at a_ij, through two massless, geometry-free links ``<joint>_x_link``
+and ``<joint>_y_link``; the last joint's origin holds R_align, so R_ij =
+Rx(a) Ry(b) Rz(c) R_align.  MuJoCo refuses a moving body without mass: a model with
+spherical joints carries MuJoCo's ``<mujoco><compiler boundmass boundinertia/></mujoco>``
+extension, which other readers ignore.
+
+For other tools: a revolute joint the spec leaves unlimited (and each of a spherical
+joint's three) is ``continuous``; a prismatic joint without spec limits has nominal
+ones (:data:`PRISMATIC_LIMIT`: URDF requires them); every movable joint has placeholder
+effort and velocity limits (:data:`EFFORT`, :data:`VELOCITY`, :data:`PRISMATIC_VELOCITY`:
+the spec has no dynamics); a free root is a ``floating`` joint :data:`ROOT_JOINT` from
+``world`` whose rest placement is in the SRDF's ``rest`` state.  kms2pin's own Pinocchio
+model is built from the compiled model directly (:mod:`kms2pin.pinmodel`), with the same
+joints; there a spherical joint is one joint (a quaternion).
 """
 
 from __future__ import annotations
@@ -34,19 +42,22 @@ import pinocchio as pin
 
 from .errors import ExportError
 from .mesh import MESH_NAME
-from .model import WORLD, Joint, System, alignment_matrix, axis_angle_matrix
+from .model import WORLD, Joint, System, alignment_matrix, rest_joint_transform, rotation_vector_matrix, xyz_angles
 from .xmltext import attr, comment, num, vec
 
 DENSITY = 1000.0  # kg/m^3, a uniform solid inner ellipsoid (about a human body's density)
 INNER_RGBA = (0.80, 0.45, 0.20, 1.0)
 OUTER_RGBA = (0.35, 0.55, 0.85, 0.25)
 MESH_DIR = "meshes"
-LIMIT = math.pi  # kms2pin's own model: a joint without limits may turn a full turn either way of 0
 #: Placeholder joint effort limit (N m) of every movable joint: the spec has no dynamics,
 #: but simulators and planners read 0 as "cannot move".  Large enough for a person or an arm.
 EFFORT = 1000.0
 #: Placeholder joint velocity limit (rad/s, about 570 deg/s), as for :data:`EFFORT`.
 VELOCITY = 10.0
+#: A prismatic joint without limits in the spec: nominal +- this (the language's largest length).
+PRISMATIC_LIMIT = 1e6
+#: A prismatic joint's placeholder velocity limit (spec length units per second).
+PRISMATIC_VELOCITY = 1.0
 #: Name of a free root's joint: Pinocchio's name for the free flyer it adds as root, the
 #: exported URDF's ``floating`` joint and the SRDF's ``virtual_joint``.
 ROOT_JOINT = "root_joint"
@@ -65,6 +76,11 @@ def rest_angle(joint: Joint) -> float:
     return a if joint.limits is not None else wrap_angle(a)
 
 
+def urdf_number(x: float) -> float:
+    """``x`` as the URDF's text gives it back (15 significant digits)."""
+    return float(num(x))
+
+
 def joint_origin(system: System, joint: Joint) -> tuple[np.ndarray, np.ndarray]:
     """(xyz, R) of ``joint``'s frame at angle 0 in its parent's link frame."""
     a_ij = np.asarray(joint.parent_bvec.pos)
@@ -78,9 +94,8 @@ def root_rest_placement(system: System) -> pin.SE3:
     """world_T_link of the root body at rest (its link frame at the joint point, eq. 2.12,
     2.16): what a free root's configuration is at the spec's rest pose."""
     j = system.joints[0]
-    R = axis_angle_matrix(np.asarray(j.parent_bvec.orient), np.radians(j.default_angle))
-    R = R @ alignment_matrix(np.asarray(j.parent_bvec.orient), np.asarray(j.child_bvec.orient))
-    return pin.SE3(R, np.asarray(j.parent_bvec.pos, dtype=float))
+    R, d = rest_joint_transform(j)
+    return pin.SE3(R, np.asarray(j.parent_bvec.pos, dtype=float) + d)
 
 
 def centre_offset(system: System, body: str) -> np.ndarray:
@@ -134,41 +149,75 @@ def _link(system: System, body_name: str) -> str:
     return "\n".join(out)
 
 
-def _limit(lower: float | None = None, upper: float | None = None) -> str:
-    """A ``<limit>`` with the placeholder effort and velocity, and the range if given (radians)."""
+def _limit(lower: float | None = None, upper: float | None = None, velocity: float = VELOCITY) -> str:
+    """A ``<limit>`` with the placeholder effort and velocity, and the range if given."""
     span = "" if lower is None else f'lower="{num(lower)}" upper="{num(upper)}" '
-    return f'    <limit {span}effort="{num(EFFORT)}" velocity="{num(VELOCITY)}"/>'
+    return f'    <limit {span}effort="{num(EFFORT)}" velocity="{num(velocity)}"/>'
 
 
-def _revolute(joint: Joint, for_model: bool) -> tuple[str, list[str]]:
-    """URDF type and lines after the origin of a revolute joint (module docstring)."""
-    axis = f'    <axis xyz="{vec(joint.child_bvec.orient)}"/>'
-    if joint.limits is not None:
-        return "revolute", [axis, _limit(*(math.radians(a) for a in joint.limits))]
-    if for_model:
-        return "revolute", [axis, _limit(-LIMIT, LIMIT)]
-    return "continuous", [axis, _limit()]
+def _axis(v) -> str:
+    return f'    <axis xyz="{vec(v)}"/>'
 
 
-#: Per joint kind of the model: (URDF type, lines after <origin>) of a joint.
-_JOINT_WRITERS = {
-    "fixed": lambda joint, for_model: ("fixed", []),
-    "revolute": _revolute,
-}
-
-
-def _joint(system: System, joint: Joint, for_model: bool) -> str:
-    xyz, R = joint_origin(system, joint)
-    kind, tail = _JOINT_WRITERS[joint.kind](joint, for_model)
+def _joint_element(name: str, kind: str, parent: str, child: str, xyz, R: np.ndarray, tail: list[str]) -> str:
     lines = [
-        f'  <joint name={attr(joint.name)} type="{kind}">',
-        f"    <parent link={attr(joint.parent_link)}/>",
-        f"    <child link={attr(joint.child)}/>",
+        f"  <joint name={attr(name)} type=\"{kind}\">",
+        f"    <parent link={attr(parent)}/>",
+        f"    <child link={attr(child)}/>",
         f'    <origin xyz="{vec(xyz)}" rpy="{vec(pin.rpy.matrixToRpy(R))}"/>',
         *tail,
         "  </joint>",
     ]
     return "\n".join(lines)
+
+
+def spherical_parts(joint_name: str) -> tuple[tuple[str, str, str], tuple[str, str]]:
+    """A spherical joint's URDF joints ``(<j>_x, <j>_y, <j>_z)`` and links ``(<j>_x_link, <j>_y_link)``."""
+    joints = tuple(f"{joint_name}_{a}" for a in "xyz")
+    return joints, (f"{joints[0]}_link", f"{joints[1]}_link")
+
+
+def _spherical(joint: Joint, xyz, R_align: np.ndarray) -> str:
+    """Three continuous joints through two massless links (module docstring)."""
+    names, links = spherical_parts(joint.name)
+    chain = [joint.parent_link, *links, joint.child]
+    e = np.eye(3)
+    out = []
+    for k in range(3):
+        last = k == 2
+        axis = R_align.T @ e[k] if last else e[k]  # the third turns about z before R_align
+        out.append(_joint_element(names[k], "continuous", chain[k], chain[k + 1], xyz if k == 0 else np.zeros(3),
+                                  R_align if last else np.eye(3), [_axis(axis), _limit()]))
+    return "\n".join(out)
+
+
+def _revolute(joint: Joint) -> tuple[str, list[str]]:
+    """URDF type and lines after the origin of a revolute joint (module docstring)."""
+    if joint.limits is not None:
+        return "revolute", [_axis(joint.child_bvec.orient), _limit(*(math.radians(a) for a in joint.limits))]
+    return "continuous", [_axis(joint.child_bvec.orient), _limit()]
+
+
+def _prismatic(joint: Joint) -> tuple[str, list[str]]:
+    lower, upper = (-PRISMATIC_LIMIT, PRISMATIC_LIMIT) if joint.limits is None else joint.limits
+    return "prismatic", [_axis(joint.child_bvec.orient), _limit(lower, upper, PRISMATIC_VELOCITY)]
+
+
+#: Per joint kind of the model: (URDF type, lines after <origin>) of a joint (spherical
+#: joints are three: :func:`_spherical`).
+_JOINT_WRITERS = {
+    "fixed": lambda joint: ("fixed", []),
+    "revolute": _revolute,
+    "prismatic": _prismatic,
+}
+
+
+def _joint(system: System, joint: Joint) -> str:
+    xyz, R = joint_origin(system, joint)
+    if joint.kind == "spherical":
+        return _spherical(joint, xyz, R)
+    kind, tail = _JOINT_WRITERS[joint.kind](joint)
+    return _joint_element(joint.name, kind, joint.parent_link, joint.child, xyz, R, tail)
 
 
 def _floating_root(system: System) -> str:
@@ -185,46 +234,71 @@ def _header(source: str, what: str = "") -> str:
     return comment(f"generated by kms2pin from {source or 'a spec'}; do not edit" + (f". {what}" if what else ""))
 
 
-def to_urdf(system: System, source: str = "", free_root: bool = False, *, for_model: bool = False) -> str:
+def to_urdf(system: System, source: str = "", free_root: bool = False) -> str:
     """URDF text of one system (``source``: the spec's file name, for the header comment).
 
     ``free_root``: the joint to the inertial frame is replaced by a free root, the
     ``floating`` joint :data:`ROOT_JOINT` from ``world`` (its origin the identity, so
-    its configuration is the root link's world placement).  ``for_model``: the flavour
-    kms2pin builds its own Pinocchio model from (module docstring): no world link and
-    no floating joint with ``free_root`` (the caller adds the free flyer).
+    its configuration is the root link's world placement).
     """
     if free_root:
         check_root_joint_name(system)
     notes = (
         "Link frames sit at each body's joint to its parent; ellipsoid centres are the collision and visual "
-        "origins. Joint ranges are the spec's; "
-        + ("joints it leaves unlimited have nominal +-pi ones (kms2pin's own model). " if for_model
-           else "joints it leaves unlimited are continuous. ")
-        + f"Effort and velocity limits are placeholders ({num(EFFORT)} N m, {num(VELOCITY)} rad/s): "
-        "the spec has no dynamics."
+        "origins. Joint ranges are the spec's; joints it leaves unlimited are continuous. "
+        f"Effort and velocity limits are placeholders ({num(EFFORT)} N m, {num(VELOCITY)} rad/s): "
+        "the spec has no dynamics." + _new_joints_note(system)
     )
-    if free_root and not for_model:
+    if free_root:
         notes += f" The floating {ROOT_JOINT}'s rest placement is in the SRDF's rest state."
     out = [
         '<?xml version="1.0"?>',
         _header(source, notes),
         f"<robot name={attr(system.name)}>",
+        *(_MUJOCO_MASSLESS if system.count("spherical") else []),
         _material("kms2pin_inner", INNER_RGBA),
         _material("kms2pin_outer", OUTER_RGBA),
+        f'  <link name="{WORLD}"/>',
     ]
-    if not (free_root and for_model):
-        out.append(f'  <link name="{WORLD}"/>')
     out += [_link(system, b.name) for b in system.bodies]
-    if free_root and not for_model:
+    joints = [j for j in system.joints if not (free_root and j.parent is None)]
+    out += [f"  <link name={attr(n)}/>" for j in joints if j.kind == "spherical" for n in spherical_parts(j.name)[1]]
+    if free_root:
         out.append(_floating_root(system))
-    out += [_joint(system, j, for_model) for j in system.joints if not (free_root and j.parent is None)]
+    out += [_joint(system, j) for j in joints]
     return "\n".join(out + ["</robot>"]) + "\n"
 
 
-def _rest_value(joint: Joint) -> str | None:
-    """A joint's value in the SRDF ``rest`` state (radians), None for a fixed joint."""
-    return num(rest_angle(joint)) if joint.kind == "revolute" else None
+#: MuJoCo's URDF extension for a model with spherical joints: their two massless links move,
+#: and MuJoCo refuses a moving body without mass unless told a least mass and inertia
+#: (other URDF readers ignore the element)
+_MUJOCO_MASSLESS = ["  <mujoco>", '    <compiler boundmass="1e-9" boundinertia="1e-12"/>', "  </mujoco>"]
+
+
+def _new_joints_note(system: System) -> str:
+    """The header comment's words on spherical and prismatic joints (none without them)."""
+    note = ""
+    if system.count("spherical"):
+        note += (" A spherical joint J is three continuous joints J_x, J_y, J_z (intrinsic rotations about x,"
+                 " the new y, the new z of the parent's axes) through two massless links J_x_link, J_y_link.")
+    if system.count("prismatic"):
+        note += (f" Prismatic limits are the spec's where it gives them, nominal (+-{PRISMATIC_LIMIT:g})"
+                 f" elsewhere; their velocity limit is {num(PRISMATIC_VELOCITY)} length units/s.")
+    return note
+
+
+def rest_values(joint: Joint) -> list[tuple[str, float]]:
+    """(URDF joint name, rest value) of ``joint``: radians for revolute joints and a spherical
+    joint's three angles (Exp(r) = Rx Ry Rz), spec length units for a prismatic joint; none
+    for a fixed joint."""
+    if joint.kind == "revolute":
+        return [(joint.name, rest_angle(joint))]
+    if joint.kind == "prismatic":
+        return [(joint.name, joint.default_offset)]
+    if joint.kind == "spherical":
+        angles = xyz_angles(rotation_vector_matrix(joint.default_rotation))
+        return list(zip(spherical_parts(joint.name)[0], (float(a) for a in angles)))
+    return []
 
 
 def to_srdf(system: System, source: str = "", free_root: bool = False) -> str:
@@ -242,13 +316,13 @@ def to_srdf(system: System, source: str = "", free_root: bool = False) -> str:
                      f"child_link={attr(system.root.name)}/>")
     lines.append(f"  <group name={group}>")
     lines += [f'    <joint name="{ROOT_JOINT}"/>'] if free_root else []
-    lines += [f"    <joint name={attr(j.name)}/>" for j in joints]
+    names = [n for j in joints for n in (spherical_parts(j.name)[0] if j.kind == "spherical" else (j.name,))]
+    lines += [f"    <joint name={attr(n)}/>" for n in names]
     lines.append("  </group>")
     lines.append(f'  <group_state name="rest" group={group}>')
     if free_root:
         lines.append(f'    <joint name="{ROOT_JOINT}" value="{vec(pin.SE3ToXYZQUAT(root_rest_placement(system)))}"/>')
-    values = [(j, _rest_value(j)) for j in joints]
-    lines += [f"    <joint name={attr(j.name)} value=\"{v}\"/>" for j, v in values if v is not None]
+    lines += [f"    <joint name={attr(n)} value=\"{num(v)}\"/>" for j in joints for n, v in rest_values(j)]
     lines.append("  </group_state>")
     for j in system.joints:
         if j.parent is not None:

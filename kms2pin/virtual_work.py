@@ -188,16 +188,22 @@ class _Structure:
         # each body frame as (parent joint, fixed placement in it), for the native kernel
         self.frame_joint = np.array([float(model.frames[f].parentJoint) for f in robot.frame_ids])
         self.frame_offset = np.array([pin.SE3ToXYZQUAT(model.frames[f].placement) for f in robot.frame_ids])
-        revolute = [j for j in range(1, model.njoints) if model.joints[j].nq == 1]
-        limited = [j for j in revolute if np.isfinite(robot.lower_limits[model.joints[j].idx_q])]
+        limited = [j for j in robot.joints if j.nq == 1 and np.isfinite(robot.lower_limits[j.idx_q])]
         # revolute angles without limits: reported modulo a full turn nearest the input
-        self.unlimited_revolute_q = np.array([model.joints[j].idx_q for j in revolute if j not in limited], dtype=int)
-        # joints with limits from the spec: (q indices, v indices, lower, upper), or None
+        self.unlimited_revolute_q = np.array(
+            [j.idx_q for j in robot.joints if j.kind == "revolute" and not np.isfinite(robot.lower_limits[j.idx_q])],
+            dtype=int,
+        )
+        # revolute and prismatic joints with limits from the spec: (q indices, v indices,
+        # lower, upper), or None
         self.limits = None
         if limited:
-            iq = np.array([model.joints[j].idx_q for j in limited])
-            iv = np.array([model.joints[j].idx_v for j in limited])
-            self.limits = (iq, iv, robot.lower_limits[iq], robot.upper_limits[iq])
+            iq = np.array([j.idx_q for j in limited])
+            iv = np.array([j.idx_v for j in limited])
+            lo, hi = robot.lower_limits[iq], robot.upper_limits[iq]
+            # (q indices, v indices, lower, upper, and the values at or below / above which a
+            # coordinate counts as at its limit)
+            self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
         self.multi_dof = any(model.joints[j].nv > 1 for j in range(1, model.njoints))
         self.upper = np.triu(np.ones((nv, nv)))
         self.strict_upper = np.triu(np.ones((nv, nv)), 1)
@@ -361,8 +367,9 @@ def static_update(
             :class:`Robot`'s methods refuse (wrong shape, non-finite, zero root
             quaternion), with the same message.
 
-    Joint limits from the spec (``revolute(a, b, angle, lower, upper)``, not in the
-    thesis) are kept: the start is clipped into them, every step is projected onto
+    Spherical joints (and a free root) are integrated on their manifold
+    (``pin.integrate``).  Joint limits from the spec (``revolute(a, b, angle, lower,
+    upper)`` and ``prismatic(a, b, offset, lower, upper)``, not in the thesis) are kept: the start is clipped into them, every step is projected onto
     them, and a joint held at a limit by a force pushing it outwards drops out of the
     Newton system (projected Levenberg-Marquardt); the equilibrium is then B^T Q = 0
     along the free joints only (a KKT point of the spring energy within the limits).
@@ -440,21 +447,17 @@ def static_update(
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
     """Gradient and Newton matrix with the joints that sit at a limit and are pushed
     outwards (descent -grad leaves the range) taken out: zero gradient, unit row and
-    column.  Returns them and the squared norm of the projected gradient."""
-    iq, iv, lo, hi = bounds
-    g = grad[iv]
-    span = hi - lo
-    active = ((q[iq] <= lo + 1e-12 * span) & (g > 0)) | ((q[iq] >= hi - 1e-12 * span) & (g < 0))
-    if not active.any():
-        return grad, H, float(grad @ grad)
-    a = iv[active]
-    grad = grad.copy()
-    grad[a] = 0.0
-    H = H.copy()
-    d = max(float(H.diagonal().max()), 1e-12)
-    H[a, :] = 0.0
-    H[:, a] = 0.0
-    H[a, a] = d
+    column, in place.  Returns them and the squared norm of the projected gradient."""
+    iq, iv, _, _, lo_at, hi_at = bounds
+    x, g = q[iq], grad[iv]
+    active = ((x <= lo_at) & (g > 0)) | ((x >= hi_at) & (g < 0))
+    if active.any():
+        a = iv[active]
+        grad[a] = 0.0
+        d = max(float(H.diagonal().max()), 1e-12)
+        H[a, :] = 0.0
+        H[:, a] = 0.0
+        H[a, a] = d
     return grad, H, float(grad @ grad)
 
 
@@ -545,7 +548,7 @@ def pose_spring_update(
     K36 = K.reshape(n, 36)
     limited = st.limits is not None
     if limited:
-        qi, vi, lo, hi = st.limits
+        qi, vi, lo, hi = st.limits[:4]
         lo, hi = lo + 1e-12, hi - 1e-12
     ks: list[float] = []  # the terms' stiffnesses, fixed at the first configuration's springs
 

@@ -10,10 +10,12 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from kms2pin.model import alignment_matrix
 from kms2pin.robot import Robot
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
-#: Every spec of the repository: the thesis's four and the two with joint limits.
+#: Every spec of the repository: the thesis's four, the two with joint limits, ours (human,
+#: gantry: spherical and prismatic joints).
 ALL_SPECS = sorted(SPECS.rglob("*.kms"))
 
 
@@ -37,9 +39,20 @@ def random_q(robot: Robot, rng: np.random.Generator) -> np.ndarray:
 
 
 def angle_of(robot: Robot, name: str, q: np.ndarray) -> np.ndarray:
-    """The coordinates of kms2pin joint ``name`` in ``q``."""
-    j = robot.model.joints[robot.model.getJointId(name)]
-    return q[j.idx_q : j.idx_q + j.nq]
+    """The coordinates in ``q`` of the exported joint ``name``: a kms2pin joint's own (the
+    root's seven, an angle in radians, an offset), or one of a spherical joint's three URDF
+    joints ``<joint>_x|y|z`` (its X-Y-Z angle, radians)."""
+    if robot.model.existJointName(name):
+        j = robot.model.joints[robot.model.getJointId(name)]
+        if not (j.nq == 4 and j.nv == 3):  # not a spherical joint's quaternion
+            return q[j.idx_q : j.idx_q + j.nq]
+    k = list(robot.coordinate_names).index(name)
+    return np.radians(np.atleast_2d(robot.coordinates(q))[0, k : k + 1])
+
+
+def urdf_joint_names(robot: Robot) -> list[str]:
+    """The exported URDF's movable joints, in kms2pin's order: a spherical joint's three."""
+    return [n for j in robot.joints for n in ((j.name,) if j.kind != "spherical" else j.names)]
 
 
 def pinocchio_q(model: pin.Model, robot: Robot, q: np.ndarray) -> np.ndarray:
@@ -56,14 +69,26 @@ def pinocchio_q(model: pin.Model, robot: Robot, q: np.ndarray) -> np.ndarray:
 
 def mujoco_qpos(mj_model, robot: Robot, q: np.ndarray) -> np.ndarray:
     """``q`` of kms2pin's ``robot`` as MuJoCo's qpos of the same joints (by name): a hinge's
-    angle, a free joint's x y z then quaternion w x y z (Pinocchio's is x y z w)."""
+    angle or a slide's offset, a free joint's x y z then quaternion w x y z (Pinocchio's is
+    x y z w), a ball's rotation in the child's aligned frame, R_alignᵀ R R_align (the MJCF
+    export's documented convention; R_align of eq. 2.12)."""
     import mujoco
 
     qpos = mj_model.qpos0.copy()
+    spec = {j.name: j for j in robot.system.joints}
     for i in range(mj_model.njnt):
         joint = mj_model.joint(i)
-        x = angle_of(robot, joint.name, q)
         a = int(joint.qposadr[0])
+        if mj_model.jnt_type[i] == mujoco.mjtJoint.mjJNT_BALL:
+            j = robot.model.joints[robot.model.getJointId(joint.name)]
+            x, y, z, w = q[j.idx_q : j.idx_q + 4] / np.linalg.norm(q[j.idx_q : j.idx_q + 4])
+            R = pin.Quaternion(w, x, y, z).toRotationMatrix()
+            A = alignment_matrix(np.asarray(spec[joint.name].parent_bvec.orient),
+                                 np.asarray(spec[joint.name].child_bvec.orient))
+            b = pin.Quaternion(A.T @ R @ A)
+            qpos[a : a + 4] = [b.w, b.x, b.y, b.z]
+            continue
+        x = angle_of(robot, joint.name, q)
         if mj_model.jnt_type[i] == mujoco.mjtJoint.mjJNT_FREE:
             qpos[a : a + 7] = [*x[:3], x[6], *x[3:6]]
         else:

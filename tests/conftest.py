@@ -11,7 +11,34 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = ROOT / "specs"
-SPEC_NAMES = ("puma600", "lowerbody", "fullbody", "jplhand")
+SPEC_NAMES = ("puma600", "lowerbody", "fullbody", "jplhand")  # the thesis's four models
+OUR_SPECS = ("human", "gantry")  # with spherical and prismatic joints (kms2pin's)
+# every joint type, with misaligned, antiparallel and tilted axes, non-zero rest rotations
+# and offsets, a spherical joint to the inertial frame and a prismatic one without limits
+MIXED_JOINTS = """
+bvec origin { pos(0.5, 1, 3); orient(0, 0, 1); }
+rigidBodySystem mixed {
+    ellipsoidBody a { innerLam(0.2, 0.3, 0.2); outerLam(0.25, 0.35, 0.25);
+        bvec base { pos(0, -0.3, 0); orient(1, 2, 0); }
+        bvec ball { pos(0.1, 0.3, 0); orient(0, 1, 1); }
+        bvec slide { pos(0.2, 0, 0.1); orient(1, -1, 2); }
+        bvec hinge { pos(-0.2, 0, 0); orient(0, 0, 1); } }
+    ellipsoidBody b { innerLam(0.1, 0.2, 0.1); outerLam(0.15, 0.25, 0.15);
+        bvec ball { pos(0, -0.2, 0.05); orient(1, 0, 0); }
+        bvec slide { pos(0, 0.2, 0); orient(0, 0, -1); } }
+    ellipsoidBody c { innerLam(0.1, 0.1, 0.2); outerLam(0.15, 0.15, 0.25);
+        bvec slide { pos(0.05, 0, -0.2); orient(-1, 1, -2); } }
+    ellipsoidBody d { innerLam(0.1, 0.1, 0.1); outerLam(0.15, 0.15, 0.15);
+        bvec slide { pos(0, 0, 0.1); orient(0.3, 0.4, 1); } }
+    ellipsoidBody e { innerLam(0.1, 0.2, 0.1); outerLam(0.15, 0.25, 0.15);
+        bvec hinge { pos(0, 0.2, 0); orient(1, 0, 0); } }
+    constraint spherical(a.ball, b.ball, 30, -20, 45);
+    constraint prismatic(c.slide, a.slide, 0.15, -0.4, 0.6);
+    constraint prismatic(b.slide, d.slide, -0.1);
+    constraint revolute(e.hinge, a.hinge, 25, -90, 90);
+}
+constraint spherical(origin, mixed.a.base, 10, 0, -30);
+"""
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
 
 
@@ -22,7 +49,7 @@ def set_csv_cell(path: Path, line: int, column: str, value: str) -> None:
     path.write_text("".join(",".join(r) + "\n" for r in rows))
 
 
-@pytest.fixture(params=SPEC_NAMES)
+@pytest.fixture(params=SPEC_NAMES + OUR_SPECS)
 def spec_path(request) -> Path:
     return SPECS / f"{request.param}.kms"
 

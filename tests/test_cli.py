@@ -58,10 +58,12 @@ def test_check_prints_the_tree_and_the_dof(spec_path, capsys):
     out = capsys.readouterr().out
     spec = kms2pin.parse(spec_path)
     (system,) = spec.systems
-    fixed = sum(j.kind == "fixed" for j in system.joints)
+    count = {kind: sum(j.kind == kind for j in system.joints) for kind in ("revolute", "spherical", "prismatic", "fixed")}
+    dof = count["revolute"] + 3 * count["spherical"] + count["prismatic"]
+    shown = [k for k, n in count.items() if n or k in ("revolute", "fixed")]
     assert out.splitlines()[0] == (
         f"{spec_path}: rigidBodySystem '{system.name}': {len(system.bodies)} bodies, "
-        f"{system.dof} degrees of freedom ({system.dof} revolute, {fixed} fixed joints)"
+        f"{dof} degrees of freedom ({', '.join(f'{count[k]} {k}' for k in shown)} joints)"
     )
     assert out.splitlines()[1] == "inertial frame"
     for body in system.bodies:
@@ -73,8 +75,8 @@ def test_check_tree_shows_nesting_and_rest_angles(capsys):
     assert main(["check", str(SPECS / "puma600.kms")]) == 0
     lines = capsys.readouterr().out.splitlines()[2:]
     assert [line.index("─") for line in lines] == [1, 4, 7, 10, 13]  # a chain
-    assert "link1  [revolute 'link1_lowerLink', axis (0, -1, 0) in base, rest 180 deg]" in lines[1]
-    assert "manipulator  [fixed" in lines[4] and "rest" not in lines[4]
+    assert "link1  [revolute 'link1_lowerLink', 1 DoF, axis (0, -1, 0) in base, rest 180 deg]" in lines[1]
+    assert "manipulator  [fixed 'manipulator_lowerLink', 0 DoF" in lines[4] and "rest" not in lines[4]
 
 
 def test_check_json_has_every_body(spec_path, capsys):
@@ -89,6 +91,7 @@ def test_check_json_has_every_body(spec_path, capsys):
         assert b["inner"] == list(body.inner) and b["outer"] == list(body.outer)
         assert b["parent"] == joint.parent
         assert b["joint"]["type"] == joint.kind and b["joint"]["default_angle_deg"] == joint.default_angle
+        assert b["joint"]["dof"] == {"fixed": 0, "revolute": 1, "spherical": 3, "prismatic": 1}[joint.kind]
 
 
 def test_check_two_systems(two_systems, capsys):
@@ -123,10 +126,12 @@ def test_export_writes_urdf_srdf_and_mesh(spec_path, tmp_path, capsys):
     assert (out / f"{system.name}.urdf").read_text() == robot.urdf
     assert (out / f"{system.name}.srdf").read_text() == robot.srdf
     model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"))
-    assert list(model.names)[1:] == list(robot.joint_names)  # continuous joints: (cos, sin) there, one angle here
-    assert model.nq == robot.nq + sum(1 for j in system.joints if j.kind == "revolute" and j.limits is None)
+    assert model.nv == robot.nv  # one URDF joint per degree of freedom (three per spherical joint)
+    continuous = sum(1 for t in ET.parse(out / f"{system.name}.urdf").getroot().iter("joint") if t.get("type") == "continuous")
+    assert model.nq == model.nv + continuous  # continuous joints: (cos, sin) in Pinocchio's parser
     links = {link.get("name") for link in ET.parse(out / f"{system.name}.urdf").getroot().iter("link")}
-    assert links == {"world", *robot.bodies}
+    between = {f"{j.name}_{a}_link" for j in system.joints if j.kind == "spherical" for a in "xy"}
+    assert links == {"world", *robot.bodies, *between}
     assert (out / "meshes" / "unit_sphere.obj").read_text().startswith("# unit sphere")
 
 
@@ -160,14 +165,16 @@ def test_export_root_free_has_a_floating_joint_from_world(spec_path, tmp_path, c
     assert main(["export", str(spec_path), "-o", str(out), "--root", "free"]) == 0
     (system,) = kms2pin.parse(spec_path).systems
     urdf = ET.parse(out / f"{system.name}.urdf").getroot()
-    assert {link.get("name") for link in urdf.iter("link")} == {"world", *(b.name for b in system.bodies)}
+    links = {f"{j.name}_{a}_link" for j in system.joints[1:] if j.kind == "spherical" for a in "xy"}
+    assert {link.get("name") for link in urdf.iter("link")} == {"world", *(b.name for b in system.bodies), *links}
     from_world = [j for j in urdf.iter("joint") if j.find("parent").get("link") == "world"]
     assert [(j.get("name"), j.get("type")) for j in from_world] == [("root_joint", "floating")]
-    assert len(list(urdf.iter("joint"))) == len(system.joints)  # the spec's joint to the inertial frame replaced
+    # the spec's joint to the inertial frame replaced; a spherical joint is three
+    assert len(list(urdf.iter("joint"))) == 1 + sum(3 if j.kind == "spherical" else 1 for j in system.joints[1:])
     srdf = ET.parse(out / f"{system.name}.srdf").getroot()
     assert system.joints[0].name not in {j.get("name") for j in srdf.iter("joint")}
     model = pin.buildModelFromUrdf(str(out / f"{system.name}.urdf"))  # no free flyer to pass
-    assert list(model.names)[1:] == list(kms2pin.load(spec_path, root="free").joint_names)
+    assert model.nv == kms2pin.load(spec_path, root="free").nv
 
 
 def test_export_on_a_model_error_writes_nothing(broken, tmp_path, capsys):

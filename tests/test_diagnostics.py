@@ -559,14 +559,58 @@ def test_a_bad_statement_in_a_body_function(statement, message):
 
 
 def test_bad_joint_type():
-    text = edit("revolute(leftShin.knee", "prismatic(leftShin.knee")
-    only(text, "unknown joint type 'prismatic'; the language has fixed and revolute joints", "prismatic")
+    text = edit("revolute(leftShin.knee", "screw(leftShin.knee")
+    only(text, "unknown joint type 'screw'; the language has fixed, revolute, spherical and prismatic joints",
+         "screw")
     text = edit("revolute(leftShin.knee", "revolut(leftShin.knee")
     only(
         text,
-        "unknown joint type 'revolut' (did you mean 'revolute'?); the language has fixed and revolute joints",
+        "unknown joint type 'revolut' (did you mean 'revolute'?); the language has fixed, revolute, spherical "
+        "and prismatic joints",
         "revolut(",
     )
+
+
+@pytest.mark.parametrize(
+    "joint, message, needle, nth",
+    [
+        ("spherical(leftShin.knee, leftThigh.knee, 20)",
+         "constraint spherical(a, b[, rx, ry, rz]) takes 2 or 5 arguments, not 3", "constraint spherical", 0),
+        ("spherical(leftShin.knee, leftThigh.knee, 1, 2, 3, 4)",
+         "constraint spherical(a, b[, rx, ry, rz]) takes 2 or 5 arguments, not 6", "constraint spherical", 0),
+        ("spherical(leftShin.knee, leftThigh.knee, 1, true, 3)",
+         "a rotation vector component must be a double (degrees), not bool", "true", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0.1, 0)",
+         "constraint prismatic(a, b[, offset[, lower, upper]]) takes 2, 3 or 5 arguments, not 4",
+         "constraint prismatic", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, false)",
+         "a joint offset must be a double (spec length units), not bool", "false", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0, 0, true)",
+         "an upper joint limit must be a double (spec length units), not bool", "true", -1),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0, 0.5, 0.5)",
+         "the lower joint limit (0.5) must be below the upper one (0.5); a joint that cannot move is "
+         "constraint fixed(a, b)", "0.5, 0.5", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, 0.7, -0.5, 0.5)",
+         "the default offset 0.7 is outside the joint limits -0.5..0.5", "0.7", 0),
+        ("prismatic(leftShin.knee, leftThigh.knee, 2e6)",
+         "a prismatic offset or limit must be at most 1e+06 in size, not 2e+06", "2e6", 0),
+    ],
+    ids=["spherical-3-args", "spherical-6-args", "spherical-bool", "prismatic-4-args", "prismatic-bool-offset",
+         "prismatic-bool-limit", "prismatic-lower-not-below-upper", "prismatic-offset-outside", "prismatic-huge"],
+)
+def test_bad_spherical_and_prismatic_joints(joint, message, needle, nth):
+    """Each mistake in the new joints' arguments is located at its argument (or the
+    constraint), as the revolute joint's are."""
+    text = edit("revolute(leftShin.knee, leftThigh.knee, 20)", joint)
+    only(text, message, needle, nth)
+
+
+def test_a_zero_orient_on_a_prismatic_joint_is_located():
+    text = edit("revolute(leftShin.knee, leftThigh.knee, 20)", "prismatic(leftShin.knee, leftThigh.knee, 0.1)")
+    text = edit("            pos(0.1, -0.1, 0);\n            orient(-1, 0, 0);",
+                "            pos(0.1, -0.1, 0);\n            orient(0, 0, 0);", text)
+    only(text, "orient vector of 'leftHip' of body 'pelvis' is zero; a bound vector needs a direction",
+         "orient(0, 0, 0)")
 
 
 def test_bad_joint_arguments():
@@ -593,7 +637,7 @@ def test_every_error_is_reported_in_one_run_sorted_by_position():
     text = edit("fac*length);", "fac*lenght);", text)  # unknown variable (in a function)
     text = edit("outerLam(0.25, 0.125, 0.125);", "outerLam(0.25, 0.05, 0.125);", text)  # not enclosing
     text = edit("leftThigh.knee, 20", "leftThigh.kne, 20", text)  # unknown bvec
-    text = edit("revolute(pelvis.leftHip", "prismatic(pelvis.leftHip", text)  # bad joint type
+    text = edit("revolute(pelvis.leftHip", "screw(pelvis.leftHip", text)  # bad joint type
     ds = [d for d in diagnostics(text) if d.severity == "error"]
     got = [(d.line, d.column) for d in ds]
     assert got == sorted(got)
@@ -601,7 +645,7 @@ def test_every_error_is_reported_in_one_run_sorted_by_position():
         where(text, "fac", 1),
         where(text, "lenght"),
         where(text, "outerLam(0.25, 0.05"),
-        where(text, "prismatic"),
+        where(text, "screw"),
         where(text, "kne,"),
     ]
     assert "unknown variable 'lenght'" in ds[1].message
@@ -616,7 +660,7 @@ def test_one_mistake_gives_one_message():
         edit("Leg leftShin(0.4, true)", "Leg leftShin(0.4, 1)"),  # no 'unknown body leftShin'
         edit("Leg leftShin", "Lge leftShin"),
         edit("Leg leftShin(0.4, true)", "Leg leftShin(0.4)"),
-        edit("revolute(pelvis.leftHip", "prismatic(pelvis.leftHip"),  # no 'no path' echo
+        edit("revolute(pelvis.leftHip", "screw(pelvis.leftHip"),  # no 'no path' echo
         edit("Leg leftShin(0.4, true);", "Leg leftShin(0.4, true);\n    Leg leftShin(0.4, true);"),
     ]
     for text in cases:

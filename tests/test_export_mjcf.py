@@ -60,20 +60,26 @@ def test_the_rest_keyframe_is_the_specs_rest_pose(export):
         np.testing.assert_allclose(m.qpos0[:7], d.qpos[:7], atol=1e-14)
 
 
-def test_joints_hinge_where_the_spec_turns_with_ranges_only_where_it_limits(export):
+def test_joints_hinge_slide_or_ball_as_the_spec_moves_with_ranges_only_where_it_limits(export):
+    """Revolute joints are hinges, prismatic ones slides, spherical ones balls (MuJoCo's
+    tree order may differ from Pinocchio's: the joints are matched by name)."""
     robot, m = export.robot, export.model
     spec_joints = {j.name: j for j in robot.system.joints}
-    assert [m.joint(i).name for i in range(m.njnt)] == list(robot.joint_names)
+    assert sorted(m.joint(i).name for i in range(m.njnt)) == sorted(robot.joint_names)
+    kinds = {"revolute": mujoco.mjtJoint.mjJNT_HINGE, "prismatic": mujoco.mjtJoint.mjJNT_SLIDE,
+             "spherical": mujoco.mjtJoint.mjJNT_BALL}
     for i in range(m.njnt):
         name = m.joint(i).name
         if name == "root_joint":
             assert robot.root == "free" and m.jnt_type[i] == mujoco.mjtJoint.mjJNT_FREE
             continue
-        assert m.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE
-        limits = spec_joints[name].limits
+        joint = spec_joints[name]
+        assert m.jnt_type[i] == kinds[joint.kind], name
+        limits = None if joint.kind == "spherical" else joint.limits
         assert bool(m.jnt_limited[i]) == (limits is not None), name
         if limits is not None:
-            np.testing.assert_allclose(m.jnt_range[i], np.radians(limits), atol=1e-14)
+            expected = np.radians(limits) if joint.kind == "revolute" else np.asarray(limits)
+            np.testing.assert_allclose(m.jnt_range[i], expected, atol=1e-14)
 
 
 def test_inner_ellipsoids_collide_and_carry_a_solid_ellipsoids_mass_and_outer_ones_are_drawn_only(export):

@@ -26,7 +26,7 @@ def _same(actual: str, golden: Path) -> None:
         pytest.fail(f"compiler output drifted from {golden.name}:\n{diff[:4000]}")
 
 
-@pytest.mark.parametrize("name", ["puma600", "lowerbody", "fullbody", "jplhand"])
+@pytest.mark.parametrize("name", ["puma600", "lowerbody", "fullbody", "jplhand", "human", "gantry"])
 def test_urdf_and_srdf_match_the_committed_golden_files(name):
     spec = kms2pin.parse(ROOT / "specs" / f"{name}.kms")
     for system in spec.systems:

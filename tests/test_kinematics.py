@@ -1,8 +1,11 @@
 """The compiled Pinocchio models obey the thesis's kinematics (§2.2).
 
-* every joint constraint (eq. 2.13, 2.15) holds in Pinocchio's body poses;
+* every joint constraint (eq. 2.13, 2.15, and their forms for spherical and prismatic
+  joints) holds in Pinocchio's body poses;
 * forward kinematics equal an independent NumPy implementation of eq. 2.4, 2.12,
-  2.14 and 2.16 written here (it does not use kms2pin.model's helpers);
+  2.14 and 2.16 written here (it does not use kms2pin.model's helpers), with a
+  spherical joint's R_ij = R(quaternion) R_align and a prismatic joint's child point
+  d o_ij from the parent's;
 * default angles: the tree, not the argument order, picks parent and child; the
   angle is a right-handed rotation of the child about the parent end's axis;
 * maximal coordinates satisfy eq. 2.6-2.8 (and eq. 2.9-2.10 as printed do not);
@@ -18,7 +21,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import SPEC_NAMES, SPECS
+from conftest import MIXED_JOINTS, OUR_SPECS, SPEC_NAMES, SPECS
 
 import kms2pin
 
@@ -26,11 +29,11 @@ TOL = 1e-10
 N_CONFIGS = 20
 
 
-@pytest.fixture(scope="module", params=SPEC_NAMES)
+@pytest.fixture(scope="module", params=(*SPEC_NAMES, *OUR_SPECS, "mixed"))
 def robots(request):
-    """(spec robot, free-root robot) of one thesis spec."""
-    path = SPECS / f"{request.param}.kms"
-    return kms2pin.load(path), kms2pin.load(path, root="free")
+    """(spec robot, free-root robot) of one spec (``mixed``: conftest.MIXED_JOINTS)."""
+    spec = kms2pin.parse(MIXED_JOINTS) if request.param == "mixed" else SPECS / f"{request.param}.kms"
+    return kms2pin.load(spec), kms2pin.load(spec, root="free")
 
 
 # ----------------------------------------------------------------------------- independent maths
@@ -94,20 +97,25 @@ def preorder(system) -> list:
     return out
 
 
-def joint_angles(robot, q) -> dict[str, float]:
-    """Revolute joint angles (radians) by joint name, read from Pinocchio's q."""
+def joint_values(robot, q) -> dict[str, object]:
+    """Each moving joint's value read from Pinocchio's q: a revolute angle (radians), a
+    prismatic offset, a spherical joint's rotation matrix (eq. 2.7 of its quaternion,
+    stored x, y, z, w)."""
     out = {}
+    kinds = {j.name: j.kind for j in robot.system.joints}
     for name in robot.joint_names:
-        jid = robot.model.getJointId(name)
-        jm = robot.model.joints[jid]
-        if jm.nq == 1:
+        jm = robot.model.joints[robot.model.getJointId(name)]
+        if kinds.get(name) in ("revolute", "prismatic"):
             out[name] = float(q[jm.idx_q])
+        elif kinds.get(name) == "spherical":
+            x, y, z, w = q[jm.idx_q : jm.idx_q + 4] / np.linalg.norm(q[jm.idx_q : jm.idx_q + 4])
+            out[name] = euler_to_matrix(w, x, y, z)
     return out
 
 
 def forward_kinematics(robot, q) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """(mu_0j, R_0j) of every body by eq. 2.4, 2.12, 2.14, 2.16 (no Pinocchio)."""
-    angles = joint_angles(robot, q)
+    values = joint_values(robot, q)
     poses = {None: (np.zeros(3), np.eye(3))}
     for j in preorder(robot.system):
         a_ij, o_ij = np.array(j.parent_bvec.pos), np.array(j.parent_bvec.orient)
@@ -119,22 +127,38 @@ def forward_kinematics(robot, q) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             poses[j.child] = (p - R_j @ a_ji, R_j)
             continue
         mu_i, R_i = poses[j.parent]
-        theta = angles[j.name] if j.kind == "revolute" else 0.0
-        R_ij = rot(o_ij, theta) @ r_align(o_ij, o_ji)  # eq. 2.16
+        R_ij = r_align(o_ij, o_ji)  # eq. 2.12: fixed and prismatic joints
+        if j.kind == "revolute":
+            R_ij = rot(o_ij, values[j.name]) @ R_ij  # eq. 2.16
+        elif j.kind == "spherical":
+            R_ij = values[j.name] @ R_ij
+        elif j.kind == "prismatic":
+            a_ij = a_ij + values[j.name] * o_ij  # the child's point slides along o_ij
         R_j = R_i @ R_ij  # eq. 2.11
         poses[j.child] = (mu_i + R_i @ a_ij - R_j @ a_ji, R_j)  # eq. 2.14
     return poses
 
 
 def random_q(robot, rng: np.random.Generator) -> np.ndarray:
-    """Every revolute angle anywhere in +-180 deg; a random free-flyer pose."""
+    """Every revolute angle anywhere in +-180 deg, every prismatic offset within its limits
+    (+-1 without), every spherical joint and a free flyer any rotation (a free flyer
+    anywhere within +-5)."""
     q = robot.q_rest.copy()
-    for name in joint_angles(robot, q):
-        q[robot.model.joints[robot.model.getJointId(name)].idx_q] = rng.uniform(-math.pi, math.pi)
-    if robot.root == "free":
-        quat = rng.normal(size=4)
-        q[:3] = rng.uniform(-5, 5, 3)
-        q[3:7] = quat / np.linalg.norm(quat)
+    kinds = {j.name: j.kind for j in robot.system.joints}
+    for name in robot.joint_names:
+        jm = robot.model.joints[robot.model.getJointId(name)]
+        kind, i = kinds.get(name, "free"), jm.idx_q
+        if kind == "revolute":
+            q[i] = rng.uniform(-math.pi, math.pi)
+        elif kind == "prismatic":
+            lo, hi = (robot.lower_limits[i], robot.upper_limits[i]) if np.isfinite(robot.lower_limits[i]) else (-1, 1)
+            q[i] = rng.uniform(lo, hi)
+        elif kind in ("spherical", "free"):
+            quat = rng.normal(size=4)
+            k = i + (3 if kind == "free" else 0)
+            q[k : k + 4] = quat / np.linalg.norm(quat)
+            if kind == "free":
+                q[:3] = rng.uniform(-5, 5, 3)
     return q
 
 
@@ -155,7 +179,7 @@ def test_every_joint_constraint_holds(robots, root):
     robot = robots[root == "free"]
     checked = 0
     for q in configurations(robot, seed=1):
-        poses = poses_of(robot, q)
+        poses, values = poses_of(robot, q), joint_values(robot, q)
         poses[None] = (np.zeros(3), np.eye(3))
         for j in robot.system.joints:
             if j.parent is None and root == "free":
@@ -163,12 +187,20 @@ def test_every_joint_constraint_holds(robots, root):
             (mu_i, R_i), (mu_j, R_j) = poses[j.parent], poses[j.child]
             a_ij, o_ij = np.array(j.parent_bvec.pos), np.array(j.parent_bvec.orient)
             a_ji, o_ji = np.array(j.child_bvec.pos), np.array(j.child_bvec.orient)
-            # eq. 2.13 / 2.15: both ends of the joint at one world point ...
-            np.testing.assert_allclose(mu_i + R_i @ a_ij, mu_j + R_j @ a_ji, atol=TOL, rtol=0)
-            # ... and the joint axes aligned (eq. 2.15)
-            np.testing.assert_allclose(R_i @ o_ij, R_j @ o_ji, atol=TOL, rtol=0)
-            if j.kind == "fixed":  # eq. 2.12 / 2.13: the whole relative rotation is fixed
+            p_i, p_j = mu_i + R_i @ a_ij, mu_j + R_j @ a_ji  # the two ends' points in the world
+            if j.kind == "prismatic":
+                # the child's point on the line through the parent's along R_i o_ij, at the offset
+                u = R_i @ o_ij
+                np.testing.assert_allclose(np.cross(u, p_j - p_i), 0.0, atol=TOL, rtol=0)
+                assert (p_j - p_i) @ u == pytest.approx(values[j.name], abs=TOL)
+            else:  # eq. 2.13 / 2.15: both ends of the joint at one world point
+                np.testing.assert_allclose(p_i, p_j, atol=TOL, rtol=0)
+            if j.kind == "revolute":  # eq. 2.15: the joint axes aligned
+                np.testing.assert_allclose(R_i @ o_ij, R_j @ o_ji, atol=TOL, rtol=0)
+            if j.kind in ("fixed", "prismatic"):  # eq. 2.12 / 2.13: the whole relative rotation is fixed
                 np.testing.assert_allclose(R_i.T @ R_j, r_align(o_ij, o_ji), atol=TOL, rtol=0)
+            if j.kind == "spherical":  # any relative rotation: the quaternion's, then R_align
+                np.testing.assert_allclose(R_i.T @ R_j, values[j.name] @ r_align(o_ij, o_ji), atol=TOL, rtol=0)
             checked += 1
     assert checked >= (N_CONFIGS + 1) * (len(robot.system.joints) - 1)
 
@@ -471,26 +503,45 @@ def test_body_jacobian_matches_finite_differences(robots, root):
 # ----------------------------------------------------------------------------- f. rest state
 
 
+def rotation_vector(r_deg) -> np.ndarray:
+    """Exp(r): |r| degrees about r / |r| (eq. 2.4)."""
+    r = np.radians(np.asarray(r_deg, dtype=float))
+    n = np.linalg.norm(r)
+    return np.eye(3) if n == 0 else rot(r / n, n)
+
+
 def test_srdf_rest_state_holds_the_default_angles(robots):
+    """Revolute joints: the default angle; prismatic: the default offset; spherical: three
+    angles (a, b, c) of its URDF joints with Rx(a) Ry(b) Rz(c) = Exp(r); q_rest the same."""
+    e = np.eye(3)
     for robot in robots:
         state = ET.fromstring(robot.srdf).find("group_state[@name='rest']")
         values = {j.get("name"): float(j.get("value")) for j in state.findall("joint") if j.get("name") != "root_joint"}
         assert (state.find("joint[@name='root_joint']") is not None) == (robot.root == "free")  # test_export_urdf
-        expected = {
-            j.name: math.radians(j.default_angle)
-            for j in robot.system.joints
-            if j.kind == "revolute" and not (robot.root == "free" and j.parent is None)
-        }
-        assert values.keys() == expected.keys()
-        for name, angle in expected.items():
-            assert values[name] == pytest.approx(angle, abs=1e-14)
-            idx = robot.model.joints[robot.model.getJointId(name)].idx_q
-            assert robot.q_rest[idx] == pytest.approx(angle, abs=1e-14)
+        moving = [j for j in robot.system.joints if j.kind != "fixed" and not (robot.root == "free" and j.parent is None)]
+        expected_names = set()
+        for j in moving:
+            jm = robot.model.joints[robot.model.getJointId(j.name)]
+            if j.kind == "spherical":
+                names = [f"{j.name}_{a}" for a in "xyz"]
+                expected_names.update(names)
+                a, b, c = (values[n] for n in names)
+                R = rotation_vector(j.default_rotation)
+                np.testing.assert_allclose(rot(e[0], a) @ rot(e[1], b) @ rot(e[2], c), R, atol=1e-13)
+                x, y, z, w = robot.q_rest[jm.idx_q : jm.idx_q + 4]
+                np.testing.assert_allclose(euler_to_matrix(w, x, y, z), R, atol=1e-13)
+                continue
+            expected_names.add(j.name)
+            rest = math.radians(j.default_angle) if j.kind == "revolute" else j.default_offset
+            assert values[j.name] == pytest.approx(rest, abs=1e-14)
+            assert robot.q_rest[jm.idx_q] == pytest.approx(rest, abs=1e-14)
+        assert values.keys() == expected_names
 
 
 def test_free_root_rest_pose_equals_the_spec_rest_pose(robots):
     spec, free = robots
-    assert free.nq == spec.nq + 7 - (1 if spec.system.joints[0].kind == "revolute" else 0)
+    root_nq = {"fixed": 0, "revolute": 1, "prismatic": 1, "spherical": 4}[spec.system.joints[0].kind]
+    assert free.nq == spec.nq + 7 - root_nq
     a, b = spec.body_poses(spec.q_rest), free.body_poses(free.q_rest)
     for name, Ma, Mb in zip(spec.bodies, a, b):
         np.testing.assert_allclose(Mb.translation, Ma.translation, atol=TOL, err_msg=name)

@@ -625,9 +625,10 @@ def test_empty_statements_and_blocks_are_allowed_everywhere():
     assert value("1", top=";;{};{ ; }", body=";{}", bvec=";{ ; }", system="; {}") == 1
 
 
-def test_the_four_thesis_specs_compile(spec_path):
+def test_every_spec_compiles(spec_path):
     spec = kms2pin.parse(spec_path)
-    expected = {"puma600": (5, 4), "lowerbody": (9, 7), "fullbody": (15, 12), "jplhand": (11, 11)}
+    expected = {"puma600": (5, 4), "lowerbody": (9, 7), "fullbody": (15, 12), "jplhand": (11, 11),
+                "human": (15, 1 + 6 * 3 + 6), "gantry": (5, 3 + 1)}
     bodies, dof = expected[spec_path.stem]
     (system,) = spec.systems
     assert (len(system.bodies), system.dof) == (bodies, dof)

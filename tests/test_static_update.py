@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import require_kernels
+from conftest import MIXED_JOINTS, require_kernels
 
 import kms2pin
 from kms2pin.virtual_work import StaticUpdateResult, _Evaluator, static_update, stiffness_array, target_array
@@ -24,13 +24,16 @@ ROBOTS = {}
 
 
 def robot(name: str, root: str = "spec") -> kms2pin.Robot:
+    """A spec of specs/ (``mixed``: conftest.MIXED_JOINTS), loaded once."""
     key = (name, root)
     if key not in ROBOTS:
-        ROBOTS[key] = kms2pin.load(SPECS / f"{name}.kms", root=root)
+        spec = kms2pin.parse(MIXED_JOINTS) if name == "mixed" else SPECS / f"{name}.kms"
+        ROBOTS[key] = kms2pin.load(spec, root=root)
     return ROBOTS[key]
 
 
-CASES = [(n, r) for n in ("puma600", "lowerbody", "fullbody", "jplhand") for r in ("spec", "free")]
+NAMES = ("puma600", "lowerbody", "fullbody", "jplhand", "human", "gantry", "mixed")
+CASES = [(n, r) for n in NAMES for r in ("spec", "free")]
 
 
 def qmul(a, b):
@@ -76,7 +79,7 @@ def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root, ba
     r = robot(name, root)
     rng = np.random.default_rng(1)
     for _ in range(5):
-        q_star = r.random_configuration(rng, 90)
+        q_star = r.clamp(r.random_configuration(rng, 90))  # valid: within the spec's joint limits
         if root == "free":
             q_star[:3] += rng.normal(0, 0.3, 3)
         q0 = pin.integrate(r.model, q_star, rng.normal(0, 0.25, r.nv))
@@ -89,18 +92,27 @@ def test_targets_from_a_valid_configuration_are_recovered_exactly(name, root, ba
 @pytest.mark.parametrize("name,root", CASES)
 def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root, backend):
     """B^T Q = 0 (eq. 2.28) checked without the solver's Jacobian: the finite-difference
-    gradient of the independently computed energy vanishes at the result."""
+    gradient of the independently computed energy vanishes at the result, but for a
+    coordinate held at a joint limit, where it must push outwards (a KKT point)."""
     r = robot(name, root)
     rng = np.random.default_rng(2)
     for _ in range(3):
-        q0 = r.random_configuration(rng, 90)
+        q0 = r.clamp(r.random_configuration(rng, 90))
         t = noisy_targets(r, q0, rng)
         res = static_update(r, q0, t)
         assert res.converged, res.message
         assert res.energy == pytest.approx(energy(r, res.q, t), rel=1e-12)
         assert res.energy < energy(r, q0, t)
         g = fd_gradient(r, res.q, lambda q: energy(r, q, t))
-        assert np.abs(g).max() < 1e-6 * max(1.0, res.energy)
+        tol = 1e-6 * max(1.0, res.energy)
+        for j in r.joints:
+            if j.nq == 1 and np.isfinite(r.lower_limits[j.idx_q]):
+                at_lower = res.q[j.idx_q] <= r.lower_limits[j.idx_q] + 1e-12
+                at_upper = res.q[j.idx_q] >= r.upper_limits[j.idx_q] - 1e-12
+                if at_lower or at_upper:
+                    assert (g[j.idx_v] > -tol) if at_lower else (g[j.idx_v] < tol)
+                    g[j.idx_v] = 0.0
+        assert np.abs(g).max() < tol
         # forces are eq. 2.33 at the equilibrium
         qm = r.maximal_coordinates(res.q)
         tt = t.copy()
@@ -108,7 +120,8 @@ def test_noisy_updates_reach_a_stationary_point_of_the_spring_energy(name, root,
         np.testing.assert_allclose(res.forces, tt - qm, atol=1e-12)
 
 
-@pytest.mark.parametrize("name,root", [("fullbody", "spec"), ("jplhand", "free"), ("puma600", "free")])
+@pytest.mark.parametrize("name,root", [("fullbody", "spec"), ("jplhand", "free"), ("puma600", "free"),
+                                       ("human", "free"), ("gantry", "spec"), ("mixed", "spec")])
 def test_gradient_and_newton_hessian_match_finite_differences(name, root, backend):
     r = robot(name, root)
     rng = np.random.default_rng(3)
@@ -133,6 +146,10 @@ def test_gradient_and_newton_hessian_match_finite_differences(name, root, backen
         # symmetric part, which agrees with H's to ~1e-8 (entries up to ~100); the other blocks
         # have no such term and are compared as they are.
         Hfd[:6, :6] = 0.5 * (Hfd[:6, :6] + Hfd[:6, :6].T)
+    for j in r.joints:  # a spherical joint's rotations do not commute either: the same for its 3x3 block
+        if j.kind == "spherical":
+            b = slice(j.idx_v, j.idx_v + 3)
+            Hfd[b, b] = 0.5 * (Hfd[b, b] + Hfd[b, b].T)
     np.testing.assert_allclose(H, Hfd, atol=1e-5)
 
 

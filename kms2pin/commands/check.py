@@ -1,11 +1,12 @@
-"""Check a spec and print each system's body tree: joint type, axis, default angle, DoF."""
+"""Check a spec and print each system's body tree: joint type, degrees of freedom, axis,
+rest pose (angle, rotation or offset) and limits."""
 
 from __future__ import annotations
 
 import argparse
 import json
 
-from ..model import ModelSpec, System
+from ..model import Joint, ModelSpec, System
 from ._common import add_spec_argument, read_model
 
 NAME = "check"
@@ -35,12 +36,14 @@ def describe(spec: ModelSpec) -> dict:
                 "joint": {
                     "name": j.name,
                     "type": j.kind,
+                    "dof": j.dof,
                     "parent_bvec": j.parent_bvec.qualified_name,
                     "child_bvec": j.child_bvec.qualified_name,
                     "axis": list(j.parent_bvec.orient),
                     "axis_frame": j.parent or "world",
                     "default_angle_deg": j.default_angle,
-                    "limits_deg": list(j.limits) if j.limits is not None else None,
+                    "limits_deg": list(j.limits) if j.limits is not None and j.kind == "revolute" else None,
+                    **_new_joint_fields(j),
                     "line": j.loc.line,
                 },
             })
@@ -48,28 +51,59 @@ def describe(spec: ModelSpec) -> dict:
             "name": s.name,
             "bodies": bodies,
             "dof": s.dof,
-            "revolute_joints": s.dof,
-            "fixed_joints": sum(1 for j in s.joints if j.kind == "fixed"),
+            **{f"{kind}_joints": s.count(kind) for kind in KINDS},
         })
     return {"path": spec.path, "systems": systems}
 
 
+KINDS = ("revolute", "spherical", "prismatic", "fixed")
+
+
+def _new_joint_fields(j: Joint) -> dict:
+    """The JSON fields of a spherical joint's rest rotation or a prismatic joint's offset."""
+    if j.kind == "spherical":
+        return {"default_rotation_deg": list(j.default_rotation)}
+    if j.kind == "prismatic":
+        return {"default_offset": j.default_offset, "limits": list(j.limits) if j.limits is not None else None}
+    return {}
+
+
+def _rest(j: Joint) -> str:
+    """A joint's rest pose and limits as the tree shows them."""
+    if j.kind == "revolute":
+        out = f", rest {j.default_angle:g} deg"
+        return out + (f", limits {j.limits[0]:g}..{j.limits[1]:g} deg" if j.limits is not None else "")
+    if j.kind == "spherical":
+        return f", rest rotation {_vec(j.default_rotation)} deg in {j.parent or 'world'}"
+    if j.kind == "prismatic":
+        out = f", rest offset {j.default_offset:g}"
+        return out + (f", limits {j.limits[0]:g}..{j.limits[1]:g}" if j.limits is not None else "")
+    return ""
+
+
+#: Deeper bodies are drawn at this depth, with their depth written out: the indentation of a
+#: long chain would otherwise grow with its square (a 10000-body chain: 150 million spaces).
+MAX_INDENT = 32
+
+
 def _tree(system: System) -> list[str]:
     lines = ["inertial frame"]
-
-    def walk(parent: str | None, prefix: str) -> None:
-        kids = system.children(parent)
-        for k, j in enumerate(kids):
-            last = k == len(kids) - 1
-            angle = f", rest {j.default_angle:g} deg" if j.kind == "revolute" else ""
-            if j.limits is not None:
-                angle += f", limits {j.limits[0]:g}..{j.limits[1]:g} deg"
-            axis = f"axis {_vec(j.parent_bvec.orient)} in {j.parent or 'world'}"
-            lines.append(f"{prefix}{'└─ ' if last else '├─ '}{j.child}  [{j.kind} '{j.name}', {axis}{angle}]")
-            walk(j.child, prefix + ("   " if last else "│  "))
-
-    walk(None, "")
+    stack = [(j, "", k == 0, 1) for k, j in enumerate(reversed(system.children(None)))]
+    while stack:  # depth first without recursion (chains of any length)
+        j, prefix, last, depth = stack.pop()
+        axis = f"axis {_vec(j.parent_bvec.orient)} in {j.parent or 'world'}"
+        deep = f"(depth {depth}) " if depth > MAX_INDENT else ""
+        lines.append(f"{prefix}{'└─ ' if last else '├─ '}{deep}{j.child}  "
+                     f"[{j.kind} '{j.name}', {j.dof} DoF, {axis}{_rest(j)}]")
+        inner = prefix + ("   " if last else "│  ") if depth < MAX_INDENT else prefix
+        stack.extend((k, inner, n == 0, depth + 1) for n, k in enumerate(reversed(system.children(j.child))))
     return lines
+
+
+def _counts(system: System) -> str:
+    """"12 revolute, 3 fixed joints", with spherical and prismatic joints where there are some."""
+    shown = [k for k in KINDS if k in ("revolute", "fixed") or system.count(k)]
+    return ", ".join(f"{system.count(k)} {k}" for k in shown) + " joints"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,8 +112,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(describe(spec), indent=2))
         return 0
     for s in spec.systems:
-        fixed = sum(1 for j in s.joints if j.kind == "fixed")
         print(f"{spec.path}: rigidBodySystem '{s.name}': {len(s.bodies)} bodies, "
-              f"{s.dof} degrees of freedom ({s.dof} revolute, {fixed} fixed joints)")
+              f"{s.dof} degrees of freedom ({_counts(s)})")
         print("\n".join(_tree(s)))
     return 0

@@ -72,7 +72,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"{rep['frames']} frames; model height {robot.height:.4g}")
     for name, v in rep["joint_rmse_deg"].items():
         print(f"  {name:30s} {v:8.2f} deg RMSE")
+    for name, v in rep["prismatic_rmse"].items():
+        print(f"  {name:30s} {v:8.4g} RMSE (spec length units)")
     print(f"revolute RMSE: {rep['revolute_rmse_deg']:.2f} deg")
+    if any(j.kind == "spherical" for j in robot.joints):
+        print(f"spherical RMSE: {rep['spherical_rmse_deg']:.2f} deg (the angle between the rotations)")
     print(f"mean body-centre error: {rep['mean_centre_error_pct']:.3f} % of height")
     print(f"worst frame: {rep['worst_frame']} ({rep['worst_frame_error_pct']:.3f} %)")
     print(f"last-30 / first-30 error ratio: {rep['first_vs_last_ratio']:.2f}")

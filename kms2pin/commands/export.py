@@ -9,8 +9,8 @@ from pathlib import Path
 
 from ..mesh import MESH_NAME, sphere_obj
 from ..mjcf import to_mjcf
-from ..robot import Robot
-from ..urdf import MESH_DIR
+from ..robot import check_free_root
+from ..urdf import MESH_DIR, to_srdf, to_urdf
 from ._common import add_spec_argument, read_model, write_outputs
 from ._outputs import owns_output
 
@@ -37,12 +37,15 @@ def run(args: argparse.Namespace) -> int:
     files: dict[Path, str] = {}
     if args.format == "urdf":
         files[out / MESH_DIR / MESH_NAME] = sphere_obj()
-    for system in systems:
-        robot = Robot(spec, system, args.root)  # loading in Pinocchio validates the model
+    source = os.path.basename(spec.path)
+    free = args.root == "free"
+    for system in systems:  # text only: no Pinocchio model (its construction grows as n^2)
+        if free:
+            check_free_root(system)
         if args.format == "mjcf":
-            files[out / f"{system.name}.xml"] = to_mjcf(system, os.path.basename(spec.path), args.root == "free")
+            files[out / f"{system.name}.xml"] = to_mjcf(system, source, free)
         else:
-            files[out / f"{system.name}.urdf"] = robot.urdf
-            files[out / f"{system.name}.srdf"] = robot.srdf
+            files[out / f"{system.name}.urdf"] = to_urdf(system, source, free_root=free)
+            files[out / f"{system.name}.srdf"] = to_srdf(system, source, free_root=free)
     write_outputs(files, out)
     return 0

@@ -21,12 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UsageError
 from ..ecm.camera import Camera
 from ..ecm.motions import MOTIONS, make_motion
 from ..ecm.synth import SHAPES, synthesize
 from ..ecm.tracker import Trajectory
-from ..errors import InputDataError, Kms2pinError
+from ..errors import InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
 from ._common import add_spec_argument, count, existing_file, number, positive_count, read_model

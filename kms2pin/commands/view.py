@@ -3,9 +3,11 @@ a standalone HTML page / a PNG picture of it.
 
 Without --no-serve, a meshcat server and a joint-control page are started on
 127.0.0.1 (this machine only; --host to listen elsewhere) and their URLs printed; the command then runs until interrupted
-(Ctrl-C).  --pose takes revolute joint angles in degrees, e.g.
---pose leftThigh_hip=60 leftShin_knee=40 (the control page shows the current
-configuration in this form).
+(Ctrl-C).  --pose takes joint coordinates: revolute angles in degrees, e.g.
+--pose leftThigh_hip=60 leftShin_knee=40; a spherical joint's X-Y-Z angles in
+degrees as three coordinates, e.g. --pose hip_x=20 hip_y=-10 hip_z=5; a prismatic
+joint's offset in spec length units, e.g. --pose carriage_rail=0.25 (the control
+page shows the current configuration in this form).
 """
 
 from __future__ import annotations
@@ -35,8 +37,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..viewer.scene import VIEWS
 
     add_spec_argument(p)
-    p.add_argument("--pose", nargs="+", action="extend", default=[], metavar="JOINT=DEG",
-                   help="revolute joint angles in degrees (default: the spec's rest pose)")
+    p.add_argument("--pose", nargs="+", action="extend", default=[], metavar="JOINT=VALUE",
+                   help="joint coordinates: revolute angles and a spherical joint's X-Y-Z angles "
+                        "(JOINT_x, JOINT_y, JOINT_z) in degrees, prismatic offsets in spec length units "
+                        "(default: the spec's rest pose)")
     p.add_argument("--html", metavar="OUT.html", help="write a standalone page (opens without a server)")
     p.add_argument("--png", metavar="OUT.png", help="write a picture (headless Chromium)")
     p.add_argument("--size", type=_size, default=(800, 800), metavar="WxH",

@@ -13,9 +13,13 @@ from .tracker import Trajectory
 def evaluate(
     robot: Robot, tracked: Trajectory, truth: Trajectory, camera_centre: np.ndarray | None = None
 ) -> dict:
-    """Per-joint angle RMSE (deg), body-centre error (% of height) overall, per frame and worst.
+    """Per-joint RMSE, body-centre error (% of height) overall, per frame and worst.
 
-    Revolute angle errors wrap to (-180°, 180°] (a tracked angle 360° off is exact).
+    ``joint_rmse_deg``: revolute angle errors, wrapped to (-180°, 180°] (a tracked angle
+    360° off is exact), and for a spherical joint the angle of the rotation between the
+    tracked and the true one; ``revolute_rmse_deg`` and ``spherical_rmse_deg`` are
+    their RMS over the joints of each type; ``prismatic_rmse``: each prismatic joint's
+    offset error (spec length units).
 
     Frames are compared in order; when the counts differ, the first ``frames`` (the
     shorter trajectory's count) are compared, silently: ``tracked_frames`` and
@@ -37,16 +41,17 @@ def evaluate(
         raise InputDataError(f"nothing to evaluate: {which} no frames")
     model = robot.model
     d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)]).reshape(n, model.nv)
-    # a revolute angle is a point on the circle: compare modulo 2π, in (-π, π]
-    for jid in range(1, model.njoints):
-        j = model.joints[jid]
-        if j.nq == 1:
-            d[:, j.idx_v] = -((-d[:, j.idx_v] + np.pi) % (2 * np.pi) - np.pi)
-    joints = {}
-    for jid in range(1, model.njoints):
-        j = model.joints[jid]
-        if j.nq == 1:
-            joints[model.names[jid]] = float(np.degrees(np.sqrt(np.mean(d[:, j.idx_v] ** 2))))
+    joints, offsets, kinds = {}, {}, {}
+    for j in robot.joints:
+        dv = d[:, j.idx_v]
+        if j.kind == "revolute":  # a point on the circle: compare modulo 2π, in (-π, π]
+            joints[j.name] = float(np.degrees(np.sqrt(np.mean(((dv + np.pi) % (2 * np.pi) - np.pi) ** 2))))
+        elif j.kind == "spherical":  # the angle of the relative rotation (|log3|)
+            angle = np.linalg.norm(d[:, j.idx_v : j.idx_v + 3], axis=1)
+            joints[j.name] = float(np.degrees(np.sqrt(np.mean(angle**2))))
+        elif j.kind == "prismatic":
+            offsets[j.name] = float(np.sqrt(np.mean(dv**2)))
+        kinds[j.name] = j.kind
     per_frame, depth, across = np.empty(n), np.empty(n), np.empty(n)
     scale = 100.0 / robot.height
     for k in range(n):
@@ -59,7 +64,8 @@ def evaluate(
             along = np.sum((a - b) * rays, axis=1)
             depth[k] = np.abs(along).mean() * scale
             across[k] = np.linalg.norm(a - b - along[:, None] * rays, axis=1).mean() * scale
-    rev = np.array(list(joints.values()))
+    rev = np.array([e for name, e in joints.items() if kinds[name] == "revolute"])
+    sph = np.array([e for name, e in joints.items() if kinds[name] == "spherical"])
     m = min(30, n)
 
     def ratio(e: np.ndarray) -> float:
@@ -79,6 +85,8 @@ def evaluate(
         "truth_frames": len(truth),
         "joint_rmse_deg": joints,
         "revolute_rmse_deg": float(np.sqrt(np.mean(rev**2))) if len(rev) else 0.0,
+        "spherical_rmse_deg": float(np.sqrt(np.mean(sph**2))) if len(sph) else 0.0,
+        "prismatic_rmse": offsets,
         "mean_centre_error_pct": float(per_frame.mean()),
         "worst_frame": int(per_frame.argmax()),
         "worst_frame_error_pct": float(per_frame.max()),

@@ -1,15 +1,23 @@
 """Named synthetic motions for ``kms2pin synth``: sequences of configurations (T, nq).
 
 Every motion starts at the spec's rest pose (frame 0 is ``robot.q_rest``, the
-tracker's default start) and is smooth at 30 frames/s.
+tracker's default start) and is smooth at 30 frames/s.  A spherical joint moves by
+a rotation vector w(t) in its parent's frame, R_ij = Exp(w) R_ij,rest (its quaternion
+composed on the manifold, never added to); a prismatic joint slides by a fraction of
+its range (its limits, or the model's height without them).
 
-- ``sweep``: each revolute joint in turn swings +-40 deg about its rest angle.
+- ``sweep``: each revolute joint in turn swings +-40 deg about its rest angle, each
+  spherical joint turns +-40 deg about its parent's x, then y, then z axis, each
+  prismatic joint slides +-20 % of its range.
 - ``walk``: a walking gait (hips, knees, ankles, shoulders, elbows found by name;
-  other joints sway gently); with ``root="free"`` the body also walks across the
+  a spherical joint swings about its parent end's axis; other joints sway gently;
+  prismatic joints stay at rest); with ``root="free"`` the body also walks across the
   view along world x, turning round at the ends.
-- ``random``: every joint a sum of random low-frequency sinusoids (+-30 deg).
+- ``random``: every joint coordinate a sum of random low-frequency sinusoids (+-30 deg,
+  a spherical joint about all three axes at once; +-15 % of a prismatic range).
 
-Joint angles stay within the spec's joint limits, where it gives them (clipped).
+Revolute angles and prismatic offsets stay within the spec's joint limits, where it
+gives them (clipped).
 """
 
 from __future__ import annotations
@@ -18,19 +26,32 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import Kms2pinError
-from ..robot import Robot
+from ..robot import JointCoordinates, Robot
 
 MOTIONS = ("sweep", "walk", "random")
 FPS = 30.0
+SWEEP_DEG, RANDOM_DEG = 40.0, 30.0
+SWEEP_SLIDE, RANDOM_SLIDE = 0.2, 0.15  # fractions of a prismatic joint's range
 
 
-def _revolute_slots(robot: Robot) -> list[tuple[str, int]]:
-    out = []
-    for jid in range(1, robot.model.njoints):
-        j = robot.model.joints[jid]
-        if j.nq == 1:
-            out.append((robot.model.names[jid], j.idx_q))
-    return out
+def _moving(robot: Robot) -> list[JointCoordinates]:
+    """The joints a motion moves: every revolute, spherical and prismatic joint."""
+    return [j for j in robot.joints if j.kind in ("revolute", "spherical", "prismatic")]
+
+
+def _slide_range(robot: Robot, j: JointCoordinates) -> float:
+    """A prismatic joint's range: its limits' span, else the model's height."""
+    lo, hi = robot.lower_limits[j.idx_q], robot.upper_limits[j.idx_q]
+    return float(hi - lo) if np.isfinite(lo) else robot.height
+
+
+def _turn(q: np.ndarray, j: JointCoordinates, w: np.ndarray) -> None:
+    """Turn spherical joint ``j`` of every configuration in ``q`` (T, nq) by the rotation
+    vectors ``w`` (T, 3) (radians, its parent's frame), in place."""
+    for f in range(len(q)):
+        block = q[f, j.idx_q : j.idx_q + 4]
+        R = pin.exp3(w[f]) @ pin.Quaternion(block[3], block[0], block[1], block[2]).toRotationMatrix()
+        q[f, j.idx_q : j.idx_q + 4] = pin.Quaternion(R).coeffs()
 
 
 def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
@@ -40,16 +61,26 @@ def _ramp(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
 
 
 def sweep(robot: Robot, frames: int) -> np.ndarray:
-    slots = _revolute_slots(robot)
+    slots = [(j, k) for j in _moving(robot) for k in range(3 if j.kind == "spherical" else 1)]
     q = np.repeat(robot.q_rest[None], frames, axis=0)
     if not slots:
         return q
     per = frames / len(slots)
     t = np.arange(frames)
-    for k, (_, idx) in enumerate(slots):
-        local = (t - k * per) / per
+    for n, (j, k) in enumerate(slots):
+        local = (t - n * per) / per
         inside = (local >= 0) & (local < 1)
-        q[inside, idx] += np.radians(40.0) * np.sin(2 * np.pi * local[inside])
+        wave = np.sin(2 * np.pi * local[inside])
+        if j.kind == "spherical":
+            w = np.zeros((len(wave), 3))
+            w[:, k] = np.radians(SWEEP_DEG) * wave
+            block = q[inside]
+            _turn(block, j, w)
+            q[inside] = block
+        elif j.kind == "prismatic":
+            q[inside, j.idx_q] += SWEEP_SLIDE * _slide_range(robot, j) * wave
+        else:
+            q[inside, j.idx_q] += np.radians(SWEEP_DEG) * wave
     return q
 
 
@@ -75,10 +106,14 @@ def walk(robot: Robot, frames: int) -> np.ndarray:
     t = np.arange(frames) / FPS
     phase = 2.0 * np.pi * t / 1.2  # one gait cycle per 1.2 s
     q = np.repeat(robot.q_rest[None], frames, axis=0)
-    for name, idx in _revolute_slots(robot):
-        if robot.root == "spec" and idx == 0 and name == robot.system.joints[0].name:
-            continue  # the spec's own root joint stays put
-        q[:, idx] += _gait_angle(name, phase) * _ramp(t, 0.0, 0.5)
+    for j in _moving(robot):
+        if robot.root == "spec" and j.spec is robot.system.joints[0] or j.kind == "prismatic":
+            continue  # the spec's own root joint and slides stay put
+        angle = _gait_angle(j.name, phase) * _ramp(t, 0.0, 0.5)
+        if j.kind == "spherical":  # about its parent end's axis
+            _turn(q, j, angle[:, None] * np.asarray(j.spec.parent_bvec.orient)[None])
+        else:
+            q[:, j.idx_q] += angle
     if robot.root == "free":
         rest = pin.XYZQUATToSE3(robot.q_rest[:7])
         up = np.array([0.0, 1.0, 0.0])
@@ -107,15 +142,21 @@ def random_smooth(robot: Robot, frames: int, rng: np.random.Generator) -> np.nda
     t = np.arange(frames) / FPS
     q = np.repeat(robot.q_rest[None], frames, axis=0)
     ramp = _ramp(t, 0.0, 0.5)
-    for _, idx in _revolute_slots(robot):
+
+    def wave(amplitude: float) -> np.ndarray:
         freqs = rng.uniform(0.1, 0.6, 3)
         amps = rng.uniform(0.3, 1.0, 3)
-        amps *= np.radians(30.0) / amps.sum()
+        amps *= amplitude / amps.sum()
         phases = rng.uniform(0, 2 * np.pi, 3)
-        wave = sum(
-            a * (np.sin(2 * np.pi * f * t + p) - np.sin(p)) for a, f, p in zip(amps, freqs, phases)
-        )
-        q[:, idx] += wave * ramp
+        return sum(a * (np.sin(2 * np.pi * f * t + p) - np.sin(p)) for a, f, p in zip(amps, freqs, phases)) * ramp
+
+    for j in _moving(robot):
+        if j.kind == "spherical":
+            _turn(q, j, np.stack([wave(np.radians(RANDOM_DEG)) for _ in range(3)], axis=1))
+        elif j.kind == "prismatic":
+            q[:, j.idx_q] += wave(RANDOM_SLIDE * _slide_range(robot, j))
+        else:
+            q[:, j.idx_q] += wave(np.radians(RANDOM_DEG))
     if robot.root == "free":
         rest = pin.XYZQUATToSE3(robot.q_rest[:7])
         drift = rng.uniform(-1, 1, (2, 3)) * 0.1 * robot.height

@@ -67,9 +67,11 @@ class Trajectory:
     Raises :class:`InputDataError` for a ``q`` of another shape, a non-finite ``q``
     (naming the first such frame) or a number of results other than 0 or ``frames``.
 
-    The CSV has a ``frame`` column then one column per joint coordinate: revolute
-    joint angles in degrees named after the joint; a free-flyer root as
-    ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``.
+    The CSV has a ``frame`` column then the columns :attr:`Robot.coordinate_names`:
+    revolute joint angles in degrees and prismatic offsets in spec length units, named
+    after the joint; a spherical joint's X-Y-Z angles in degrees (R = Rx Ry Rz, its URDF
+    joints ``<joint>_x``, ``_y``, ``_z``); a free-flyer root as ``root_x, root_y, root_z,
+    root_qx, root_qy, root_qz, root_qw``.
     """
 
     def __init__(self, robot: Robot, q: np.ndarray, results: Sequence[FrameResult] = (),
@@ -99,13 +101,9 @@ class Trajectory:
         return list(robot.coordinate_names)
 
     def table(self) -> np.ndarray:
-        """(T, nq) with revolute angles in degrees (CSV units)."""
-        out = self.q.copy()
-        for jid in range(1, self.robot.model.njoints):
-            j = self.robot.model.joints[jid]
-            if j.nq == 1:
-                out[:, j.idx_q] = np.degrees(out[:, j.idx_q])
-        return out
+        """(T, n_coordinates) in CSV units (:meth:`Robot.coordinates`): revolute angles and
+        spherical joints' X-Y-Z angles in degrees, prismatic offsets in spec units."""
+        return self.robot.coordinates(self.q)
 
     def to_csv(self, path: str | os.PathLike) -> None:
         extra = bool(self.results)
@@ -225,7 +223,7 @@ class Trajectory:
             )
         idx = [header.index(c) for c in cols]
         body = rows[1:]
-        q = np.empty((len(body), robot.nq))
+        q = np.empty((len(body), len(cols)))  # CSV coordinates, converted to q below
         short = len(body)  # the first malformed row, reported after any bad cell above it
         for k, (_, row) in enumerate(body):
             if len(row) <= max(idx):
@@ -246,11 +244,7 @@ class Trajectory:
             raise InputDataError(f"{path}:{line}: malformed row: {len(row)} fields, the header has {len(header)}")
         if robot.root == "free":
             _check_root(q, [line for line, _ in body], cols, path)
-        for jid in range(1, robot.model.njoints):
-            j = robot.model.joints[jid]
-            if j.nq == 1:
-                q[:, j.idx_q] = np.radians(q[:, j.idx_q])
-        return cls(robot, q)
+        return cls(robot, robot.configuration(q))
 
 
 def _check_root(q: np.ndarray, lines: list[int], cols: list[str], path) -> None:

@@ -95,10 +95,28 @@ def _fn_table() -> dict[str, tuple[int, object]]:
 
 FUNCTIONS = _fn_table()
 STATEMENTS = {"innerLam": "body", "outerLam": "body", "pos": "bvec", "orient": "bvec"}
-JOINT_KINDS = ("fixed", "revolute")
+JOINT_KINDS = ("fixed", "revolute", "spherical", "prismatic")
+# per joint type: argument counts, the signature shown, what each argument after the two
+# ends is and its unit
+_SIGNATURES = {
+    "fixed": ((2,), "fixed(a, b)", (), ""),
+    "revolute": (
+        (2, 3, 5),
+        "revolute(a, b[, defaultAngle[, lower, upper]])",
+        ("a joint angle", "a lower joint limit", "an upper joint limit"),
+        "degrees",
+    ),
+    "spherical": ((2, 5), "spherical(a, b[, rx, ry, rz])", ("a rotation vector component",) * 3, "degrees"),
+    "prismatic": (
+        (2, 3, 5),
+        "prismatic(a, b[, offset[, lower, upper]])",
+        ("a joint offset", "a lower joint limit", "an upper joint limit"),
+        "spec length units",
+    ),
+}
 # the accepted ranges (docs/language.md, 'Numbers'): semi-axes in [MIN_LENGTH, MAX_LENGTH],
-# bound-vector positions within +-MAX_LENGTH.  Larger bodies overflow the URDF's inertia
-# (mass ~ a b c, inertia ~ m a^2), smaller ones underflow it to zero.
+# bound-vector positions and prismatic offsets within +-MAX_LENGTH.  Larger bodies overflow
+# the URDF's inertia (mass ~ a b c, inertia ~ m a^2), smaller ones underflow it to zero.
 MAX_LENGTH = 1e6
 MIN_LENGTH = 1e-6
 
@@ -150,6 +168,8 @@ class _JointB:
     loc: Loc
     end_locs: tuple[Loc, Loc]
     limits: tuple[float, float] | None = None
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    offset: float = 0.0
 
 
 @dataclass
@@ -517,55 +537,64 @@ class Analyzer:
             raise _Fail(
                 s.kind_loc,
                 f"unknown joint type '{s.kind}'{did_you_mean(s.kind, JOINT_KINDS)}; "
-                "the language has fixed and revolute joints",
+                "the language has fixed, revolute, spherical and prismatic joints",
             )
-        nargs = (2, 3, 5) if s.kind == "revolute" else (2,)
-        if len(s.args) not in nargs:
-            if s.kind == "revolute":
-                raise _Fail(
-                    s.loc,
-                    "constraint revolute(a, b[, defaultAngle[, lower, upper]]) takes 2, 3 or 5 "
-                    f"arguments, not {len(s.args)}",
-                )
-            raise _Fail(s.loc, f"constraint fixed(a, b) takes 2 arguments, not {len(s.args)}")
-        ends = []
-        for a in s.args[:2]:
-            ends.append(self.resolve_bvec(a, scope, ctx))
+        counts, signature, whats, unit = _SIGNATURES[s.kind]
+        if len(s.args) not in counts:
+            shown = " or ".join(", ".join(map(str, counts)).rsplit(", ", 1))
+            raise _Fail(
+                s.loc,
+                f"constraint {signature} takes {shown} arguments, not {len(s.args)}",
+            )
+        ends = [self.resolve_bvec(a, scope, ctx) for a in s.args[:2]]
         values = []
-        for node, what in zip(s.args[2:], ("a joint angle", "a lower joint limit", "an upper joint limit")):
+        for node, what in zip(s.args[2:], whats):
             t, v = self.eval(node, scope)
             if v is POISON:
                 return
             if t != "double":
-                raise _Fail(node.loc, f"{what} must be a double (degrees), not {t}")
+                raise _Fail(node.loc, f"{what} must be a double ({unit}), not {t}")
             values.append(float(v))
-        angle = values[0] if values else 0.0
-        limits = None
-        if len(values) == 3:
-            lower, upper = values[1], values[2]
-            if not lower < upper:
-                raise _Fail(
-                    s.args[3].loc,
-                    f"the lower joint limit ({lower:g} deg) must be below the upper one ({upper:g} deg); "
-                    "a joint that cannot move is constraint fixed(a, b)",
-                )
-            if upper - lower > 360.0:
-                raise _Fail(
-                    s.args[3].loc,
-                    f"joint limits {lower:g}..{upper:g} deg span more than a full turn; "
-                    "leave them out for a joint without limits",
-                )
-            if not lower <= angle <= upper:
-                raise _Fail(
-                    s.args[2].loc,
-                    f"the default angle {angle:g} deg is outside the joint limits {lower:g}..{upper:g} deg",
-                )
-            limits = (lower, upper)
-        if any(e is None for e in ends):
-            return
-        self.joints.append(
-            _JointB(s.kind, (ends[0], ends[1]), angle, s.loc, (s.args[0].loc, s.args[1].loc), limits)
-        )
+        joint = _JointB(s.kind, (ends[0], ends[1]), 0.0, s.loc, (s.args[0].loc, s.args[1].loc))
+        if s.kind == "spherical":
+            joint.rotation = tuple(values) if values else (0.0, 0.0, 0.0)
+        elif s.kind == "prismatic":
+            for node, v in zip(s.args[2:], values):
+                if abs(v) > MAX_LENGTH:
+                    raise _Fail(node.loc, f"a prismatic offset or limit must be at most {MAX_LENGTH:g} in size, not {v:g}")
+            joint.offset = values[0] if values else 0.0
+            joint.limits = self.checked_limits(s, values, "offset", "", "")
+        elif s.kind == "revolute":
+            joint.angle = values[0] if values else 0.0
+            joint.limits = self.checked_limits(s, values, "angle", " deg", " deg")
+        if all(e is not None for e in ends):
+            self.joints.append(joint)
+
+    @staticmethod
+    def checked_limits(s: A.Constraint, values: list[float], what: str, unit: str, span_unit: str):
+        """(lower, upper) of a revolute or prismatic joint with 5 arguments, checked; else None.
+        ``values`` are the evaluated arguments after the two ends."""
+        if len(values) != 3:
+            return None
+        rest, lower, upper = values
+        if not lower < upper:
+            raise _Fail(
+                s.args[3].loc,
+                f"the lower joint limit ({lower:g}{unit}) must be below the upper one ({upper:g}{unit}); "
+                "a joint that cannot move is constraint fixed(a, b)",
+            )
+        if s.kind == "revolute" and upper - lower > 360.0:
+            raise _Fail(
+                s.args[3].loc,
+                f"joint limits {lower:g}..{upper:g} deg span more than a full turn; "
+                "leave them out for a joint without limits",
+            )
+        if not lower <= rest <= upper:
+            raise _Fail(
+                s.args[2].loc,
+                f"the default {what} {rest:g}{span_unit} is outside the joint limits {lower:g}..{upper:g}{span_unit}",
+            )
+        return lower, upper
 
     def resolve_bvec(self, node: A.Node, scope: _Scope, ctx: _Ctx) -> _BvecB | None:
         if not isinstance(node, A.Name):
@@ -910,23 +939,24 @@ class Analyzer:
         tree_joints: list[_JointB] = []
         parents: list[str | None] = []
 
-        def visit(node: str | None, via: str | None) -> None:
-            for other, j in sorted(adjacency[node], key=lambda t: rank[id(t[1])]):
-                if other == via or other in parent_of:
+        rank = {id(j): i for i, j in enumerate(self.joints)}
+        parent_of[None] = None
+        # preorder, each node's joints in spec order; a stack of iterators, not recursion,
+        # so a chain of any length is traversed
+        stack = [(None, iter(sorted(adjacency[None], key=lambda t: rank[id(t[1])])))]
+        while stack:
+            node, todo = stack[-1]
+            for other, j in todo:
+                if other in parent_of:
                     continue
                 parent_of[other] = node
                 order.append(other)
                 tree_joints.append(j)
                 parents.append(node)
-                visit(other, node)
-
-        rank = {id(j): i for i, j in enumerate(self.joints)}
-        parent_of[None] = None
-        try:
-            visit(None, None)
-        except RecursionError:
-            self.error(sb.loc, f"system '{sb.name}' is too deep to traverse")
-            return None
+                stack.append((other, iter(sorted(adjacency[other], key=lambda t: rank[id(t[1])]))))
+                break
+            else:
+                stack.pop()
         if not adjacency[None]:
             if not self.constraint_failed:
                 self.error(sb.loc, f"rigidBodySystem '{sb.name}' has no joint to the inertial frame")
@@ -952,9 +982,13 @@ class Analyzer:
             parent_end = j.ends[1] if child_end is j.ends[0] else j.ends[0]
             jname = f"{name}_{child_end.name}"
             k = 2
-            while jname in used:  # body 'a_b' + bvec 'c' and body 'a' + bvec 'b_c'
+            # body 'a_b' + bvec 'c' and body 'a' + bvec 'b_c'; a spherical joint also takes the
+            # names of its three URDF joints and two links (kms2pin.urdf.spherical_parts)
+            while not self.names_free(jname, j.kind, used, sb.bodies):
                 jname, k = f"{name}_{child_end.name}_{k}", k + 1
             used.add(jname)
+            if j.kind == "spherical":
+                used.update(f"{jname}_{a}" for a in "xyz")
             out_joints.append(
                 Joint(
                     jname,
@@ -966,9 +1000,21 @@ class Analyzer:
                     j.angle,
                     j.loc,
                     j.limits,
+                    j.rotation,
+                    j.offset,
                 )
             )
         return System(sb.name, tuple(bodies), tuple(out_joints), sb.loc)
+
+    @staticmethod
+    def names_free(name: str, kind: str, used: set[str], bodies: Mapping[str, object]) -> bool:
+        """Whether joint ``name`` (with a spherical joint's URDF joints ``name_x|y|z`` and
+        links ``name_x_link``, ``name_y_link``) clashes with no joint and no body so far."""
+        if kind != "spherical":
+            return name not in used
+        derived = [name, *(f"{name}_{a}" for a in "xyz")]
+        links = [f"{name}_{a}_link" for a in "xy"]
+        return not any(n in used for n in derived) and not any(n in bodies or n == WORLD for n in links)
 
     @staticmethod
     def tree_path(

@@ -19,15 +19,33 @@ def check_root(root: str) -> str:
     return root
 
 
-def joint_angles(system: System, angles: Mapping[str, float] | None) -> dict[str, float]:
-    """Every revolute joint's angle in radians: ``angles`` over the spec's defaults."""
-    out = {j.name: np.radians(j.default_angle) for j in system.joints if j.kind == "revolute"}
+MOVING = ("revolute", "spherical", "prismatic")
+
+
+def joint_angles(system: System, angles: Mapping[str, object] | None) -> dict[str, object]:
+    """Every moving joint's value: ``angles`` over the spec's defaults.
+
+    Revolute: the angle in radians; spherical: a rotation vector (3,) in radians in the
+    parent body's frame (R_ij = Exp(r) R_align); prismatic: the offset (spec length units).
+    """
+    out: dict[str, object] = {}
+    for j in system.joints:
+        if j.kind == "revolute":
+            out[j.name] = np.radians(j.default_angle)
+        elif j.kind == "spherical":
+            out[j.name] = np.radians(np.asarray(j.default_rotation, dtype=float))
+        elif j.kind == "prismatic":
+            out[j.name] = float(j.default_offset)
+    kinds = {j.name: j.kind for j in system.joints}
     for name, value in (angles or {}).items():
         if name not in out:
-            fixed = [j.name for j in system.joints if j.kind != "revolute"]
+            fixed = [j.name for j in system.joints if j.kind not in MOVING]
             why = " (it is a fixed joint)" if name in fixed else did_you_mean(name, out)
-            raise RobotError(f"'{system.name}' has no revolute joint '{name}'{why}")
-        out[name] = float(value)
+            raise RobotError(f"'{system.name}' has no moving joint '{name}'{why}")
+        if kinds[name] == "spherical":
+            out[name] = np.asarray(value, dtype=float).reshape(3)
+        else:
+            out[name] = float(value)
     return out
 
 
@@ -41,12 +59,15 @@ def forward_kinematics(
 
     Walks the bodies in preorder (§2.2.2): for body j with lower body i (or the
     inertial frame: mu = 0, R = I) and joint bound vectors (a_ij, o_ij), (a_ji, o_ji),
-    R_ij = Rot(o_ij, angle) R_align (revolute, eq. 2.16) or R_align (fixed, eq. 2.12),
-    R_0j = R_0i R_ij and mu_j = mu_i + R_0i a_ij - R_0j a_ji (eq. 2.14).
+    R_ij = Rot(o_ij, angle) R_align (revolute, eq. 2.16), Exp(r) R_align (spherical)
+    or R_align (fixed and prismatic, eq. 2.12), R_0j = R_0i R_ij and
+    mu_j = mu_i + R_0i (a_ij + d o_ij) - R_0j a_ji (eq. 2.14; d is a prismatic joint's
+    offset, else 0).
 
     Args:
-        angles: joint name -> angle in radians; missing joints take the spec's
-            default angle.  Angle 0 means the joint axes are aligned.
+        angles: joint name -> value (:func:`joint_angles`: radians, a rotation vector
+            in radians, or an offset); missing joints take the spec's default.  Angle 0
+            means the joint axes are aligned.
         root_pose: ``(mu, theta)`` of the root body (centre in the world and unit Euler
             parameters).  Only with ``root="free"``; None puts the root where the
             spec's joint to the inertial frame puts it (at that joint's angle).
@@ -83,13 +104,14 @@ def forward_kinematics(
             if p >= i:
                 raise RobotError(f"body '{joint.parent}' comes after its child '{body.name}' (not preorder)")
             mu_p, R_p = q[p, :3], rot[p]
-        R_ij = joint_rotation(joint.kind, joint.parent_bvec.orient, joint.child_bvec.orient, theta.get(joint.name, 0.0))
+        value = theta.get(joint.name, 0.0)
+        R_ij = joint_rotation(joint.kind, joint.parent_bvec.orient, joint.child_bvec.orient, value)
         R = R_p @ R_ij
-        mu = (
-            mu_p
-            + R_p @ np.asarray(joint.parent_bvec.pos, dtype=float)
-            - R @ np.asarray(joint.child_bvec.pos, dtype=float)
-        )
+        a_ij = np.asarray(joint.parent_bvec.pos, dtype=float)
+        if joint.kind == "prismatic":
+            o_ij = np.asarray(joint.parent_bvec.orient, dtype=float)
+            a_ij = a_ij + value * o_ij / np.linalg.norm(o_ij)
+        mu = mu_p + R_p @ a_ij - R @ np.asarray(joint.child_bvec.pos, dtype=float)
         rot[i] = R
         q[i, :3] = mu
         q[i, 3:] = matrix_to_quat(R)

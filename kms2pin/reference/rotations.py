@@ -127,11 +127,17 @@ def alignment_matrix(o_parent: np.ndarray | Sequence[float], o_child: np.ndarray
 
 
 def joint_rotation(
-    kind: str, o_parent: np.ndarray | Sequence[float], o_child: np.ndarray | Sequence[float], angle: float = 0.0
+    kind: str, o_parent: np.ndarray | Sequence[float], o_child: np.ndarray | Sequence[float], angle=0.0
 ) -> np.ndarray:
-    """R_ij of eq. 2.16 (revolute: Rot(o_parent, angle) R_align) or R_align (fixed)."""
+    """R_ij: Rot(o_parent, angle) R_align for a revolute joint (eq. 2.16), Exp(r) R_align
+    for a spherical joint (``angle`` the rotation vector r, radians, parent frame), R_align
+    for fixed and prismatic joints (eq. 2.12)."""
     Ra = alignment_matrix(o_parent, o_child)
-    if kind == "fixed":
-        return Ra
-    p = np.asarray(o_parent, dtype=float)
-    return axis_angle_matrix(p / np.linalg.norm(p), angle) @ Ra
+    if kind == "revolute":
+        p = np.asarray(o_parent, dtype=float)
+        return axis_angle_matrix(p / np.linalg.norm(p), angle) @ Ra
+    if kind == "spherical":
+        r = np.asarray(angle, dtype=float).reshape(3)
+        n = float(np.linalg.norm(r))
+        return (axis_angle_matrix(r / n, n) if n > 0 else np.eye(3)) @ Ra
+    return Ra

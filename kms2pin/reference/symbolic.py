@@ -11,10 +11,17 @@ Coordinates: q ∈ R^{7n}, body i's block q[7i:7i+7] = [mu_x, mu_y, mu_z, θ0, �
   - revolute, ``"<joint> axis x|y|z"``: R_0i o_ij - R_0j o_ji, all three rows, one of
     them redundant (eq. 2.15, §2.3.2);
   - fixed, ``"<joint> orientation R[r][c]"``: R_0j - R_0i R_align, all nine rows
-    (eq. 2.13), three of them redundant.
+    (eq. 2.13), three of them redundant;
+  - spherical (kms2pin): the position rows alone (eq. 2.15's coincidence), no
+    orientation row;
+  - prismatic (kms2pin): the nine orientation rows of a fixed joint and, instead of the
+    position rows, ``"<joint> line n1|n2"``: (R_0i n_k) . (mu_j - mu_i) + n_k . (R_align
+    a_ji - a_ij) for two unit vectors n_1, n_2 perpendicular to o_ij (parent frame):
+    the child's point mu_j + R_0j a_ji lies on the line through mu_i + R_0i a_ij along
+    R_0i o_ij (with the orientation rows, R_0i^T R_0j = R_align).
 
-The inertial frame has mu = 0 and R = I.  Every row is a polynomial of degree 2 in q,
-so C_q is linear in q and the second derivatives are constants.
+The inertial frame has mu = 0 and R = I.  Every row is a polynomial of degree <= 3 in
+q (2 without prismatic joints below a body), so C_q has degree <= 2.
 """
 
 from __future__ import annotations
@@ -29,9 +36,9 @@ import scipy.linalg
 import sympy as sp
 from sympy.polys.rings import PolyElement
 
-from ..model import System
+from ..model import JOINT_DOF, System
 from .kinematics import check_root
-from .rotations import alignment_matrix
+from .rotations import alignment_matrix, perpendicular_axis
 
 COORDINATE_NAMES = ("mu_x", "mu_y", "mu_z", "theta0", "theta1", "theta2", "theta3")
 AXES = "xyz"
@@ -56,15 +63,45 @@ def _matmul(A, B) -> list[list]:
     return [[sum((A[r][k] * B[k][c] for k in range(3) if B[k][c] != 0), 0) for c in range(3)] for r in range(3)]
 
 
-def _quadratic_terms(poly, nq: int):
-    """(a, b, coef) per term of a polynomial of degree <= 2; index nq stands for the constant 1."""
+def _terms(poly, nq: int):
+    """(a, b, c, coef) per term of a polynomial of degree <= 3; index nq stands for the constant 1."""
     out = []
     for monom, coef in poly.terms():
         idx = [k for k, e in enumerate(monom) if e for _ in range(e)]
-        if len(idx) > 2:  # pragma: no cover - eq. 2.6/2.13/2.15 are quadratic
-            raise ValueError("constraint of degree > 2")
-        idx += [nq] * (2 - len(idx))
-        out.append((idx[0], idx[1], float(coef)))
+        if len(idx) > 3:  # pragma: no cover - the rows are of degree <= 3
+            raise ValueError("constraint of degree > 3")
+        idx += [nq] * (3 - len(idx))
+        out.append((idx[0], idx[1], idx[2], float(coef)))
+    return out
+
+
+def _joint_rows(joint, parent, child, zero) -> list[tuple]:
+    """(row, label) of one joint's constraints (see the module docstring); ``parent`` and
+    ``child`` are (mu, R) of the two bodies as ring elements (the inertial frame's are
+    constants)."""
+    (mu_i, R_i), (mu_j, R_j) = parent, child
+    a_ij, o_ij = [float(x) for x in joint.parent_bvec.pos], [float(x) for x in joint.parent_bvec.orient]
+    a_ji, o_ji = [float(x) for x in joint.child_bvec.pos], [float(x) for x in joint.child_bvec.orient]
+    out = []
+    if joint.kind != "prismatic":  # eq. 2.13 / 2.15: both ends at one world point
+        Ra_ij, Ra_ji = _matvec(R_i, a_ij), _matvec(R_j, a_ji)
+        out += [(mu_i[k] + Ra_ij[k] - mu_j[k] - Ra_ji[k] + zero, f"position {AXES[k]}") for k in range(3)]
+    if joint.kind == "revolute":  # eq. 2.15: the axes aligned
+        Ro_ij, Ro_ji = _matvec(R_i, o_ij), _matvec(R_j, o_ji)
+        out += [(Ro_ij[k] - Ro_ji[k] + zero, f"axis {AXES[k]}") for k in range(3)]
+    elif joint.kind in ("fixed", "prismatic"):  # eq. 2.13: R_0j = R_0i R_align
+        R_align = alignment_matrix(o_ij, o_ji)
+        RR_ = _matmul(R_i, R_align.tolist())
+        out += [(R_j[r][c] - RR_[r][c] + zero, f"orientation R[{r}][{c}]") for r in range(3) for c in range(3)]
+    if joint.kind == "prismatic":  # the child's point on the parent's line
+        n1 = perpendicular_axis(o_ij)
+        gap = R_align @ np.asarray(a_ji) - np.asarray(a_ij)
+        for k, n in enumerate((n1, np.cross(o_ij, n1)), start=1):
+            Rn = _matvec(R_i, n.tolist())
+            row = sum((Rn[c] * (mu_j[c] - mu_i[c]) for c in range(3)), zero) + float(n @ gap)
+            out.append((row, f"line n{k}"))
+    elif joint.kind not in ("fixed", "revolute", "spherical"):  # pragma: no cover - the language's four
+        raise ValueError(f"unsupported joint kind {joint.kind!r}")
     return out
 
 
@@ -129,29 +166,11 @@ class SymbolicModel:
             if joint.parent is None and self.root == "free":
                 dof += 6
                 continue
-            dof += 1 if joint.kind == "revolute" else 0
-            mu_i, R_i = frame(None if joint.parent is None else index[joint.parent])
-            mu_j, R_j = frame(j_idx)
-            a_ij, o_ij = [float(x) for x in joint.parent_bvec.pos], [float(x) for x in joint.parent_bvec.orient]
-            a_ji, o_ji = [float(x) for x in joint.child_bvec.pos], [float(x) for x in joint.child_bvec.orient]
-            Ra_ij, Ra_ji = _matvec(R_i, a_ij), _matvec(R_j, a_ji)
-            for k in range(3):
-                rows.append(mu_i[k] + Ra_ij[k] - mu_j[k] - Ra_ji[k] + zero)
-                labels.append(f"{joint.name} position {AXES[k]}")
-            if joint.kind == "revolute":
-                Ro_ij, Ro_ji = _matvec(R_i, o_ij), _matvec(R_j, o_ji)
-                for k in range(3):
-                    rows.append(Ro_ij[k] - Ro_ji[k] + zero)
-                    labels.append(f"{joint.name} axis {AXES[k]}")
-            elif joint.kind == "fixed":
-                R_align = alignment_matrix(o_ij, o_ji).tolist()
-                RR_ = _matmul(R_i, R_align)
-                for r in range(3):
-                    for c in range(3):
-                        rows.append(R_j[r][c] - RR_[r][c] + zero)
-                        labels.append(f"{joint.name} orientation R[{r}][{c}]")
-            else:  # pragma: no cover - the language only has these two
-                raise ValueError(f"unsupported joint kind {joint.kind!r}")
+            dof += JOINT_DOF[joint.kind]
+            parent = frame(None if joint.parent is None else index[joint.parent])
+            new_rows = _joint_rows(joint, parent, frame(j_idx), zero)
+            rows += [r for r, _ in new_rows]
+            labels += [f"{joint.name} {lab}" for _, lab in new_rows]
         self.polys = tuple(rows)
         self.labels = tuple(labels)
         self.nc = len(rows)
@@ -168,24 +187,27 @@ class SymbolicModel:
                     jac.append((r, k, d))
         self._jac_polys = tuple(jac)
 
-        # numeric evaluators from the polynomial coefficients (every row has degree <= 2)
+        # numeric evaluators from the polynomial coefficients (every row has degree <= 3)
         nq = self.nq
-        terms = [(r, a, b, c) for r, p in enumerate(rows) for a, b, c in _quadratic_terms(p, nq)]
-        self._c_rows, self._c_a, self._c_b, self._c_coef = (np.array(x) for x in zip(*terms))
-        terms = [(e, a, b, c) for e, (_, _, d) in enumerate(jac) for a, b, c in _quadratic_terms(d, nq)]
-        self._j_ent, self._j_a, self._j_b, self._j_coef = (np.array(x) for x in zip(*terms))
+        terms = [(r, *t) for r, p in enumerate(rows) for t in _terms(p, nq)]
+        self._c_rows, self._c_a, self._c_b, self._c_c, self._c_coef = (np.array(x) for x in zip(*terms))
+        terms = [(e, *t) for e, (_, _, d) in enumerate(jac) for t in _terms(d, nq)]
+        self._j_ent, self._j_a, self._j_b, self._j_c, self._j_coef = (np.array(x) for x in zip(*terms))
         self._jrows = np.array([r for r, _, _ in jac], dtype=int)
         self._jcols = np.array([k for _, k, _ in jac], dtype=int)
-        # second derivatives d2C_r/dq_i dq_k: constants
+        # second derivatives d2C_r/dq_i dq_k = coef * q_other (q_nq = 1: a constant), from
+        # each term coef q_a q_b of dC_r/dq_i (degree <= 2, so its third index is nq)
         second = []
         for r, i, d in jac:
-            for a, b, c in _quadratic_terms(d, nq):
-                if b == nq and a < nq:  # linear term c*q_a of dC_r/dq_i
-                    second.append((r, i, a, c))
-        self._hr, self._hi, self._hk, self._hc = (
+            for a, b, _, c in _terms(d, nq):
+                if a < nq:
+                    second.append((r, i, a, c, b))
+                if b < nq:
+                    second.append((r, i, b, c, a))
+        self._hr, self._hi, self._hk, self._hc, self._ho = (
             (np.array(x) for x in zip(*second))
             if second
-            else (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros(0))
+            else (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
         )
         self.build_seconds = time.perf_counter() - start
 
@@ -254,21 +276,25 @@ class SymbolicModel:
     def C(self, q: np.ndarray) -> np.ndarray:
         """C(q), shape (nc,)."""
         x = self._ext(q)
-        return np.bincount(self._c_rows, self._c_coef * x[self._c_a] * x[self._c_b], minlength=self.nc)
+        vals = self._c_coef * x[self._c_a] * x[self._c_b] * x[self._c_c]
+        return np.bincount(self._c_rows, vals, minlength=self.nc)
 
     def C_q(self, q: np.ndarray) -> np.ndarray:
         """C_q(q) = dC/dq, shape (nc, 7n)."""
         x = self._ext(q)
-        vals = np.bincount(self._j_ent, self._j_coef * x[self._j_a] * x[self._j_b], minlength=len(self._jrows))
+        vals = np.bincount(
+            self._j_ent, self._j_coef * x[self._j_a] * x[self._j_b] * x[self._j_c], minlength=len(self._jrows)
+        )
         out = np.zeros((self.nc, self.nq))
         out[self._jrows, self._jcols] = vals
         return out
 
     def constraint_hessian(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        """Σ_r lam_r ∂²C_r/∂q², shape (7n, 7n) (constant in q for these constraints)."""
+        """Σ_r lam_r ∂²C_r/∂q², shape (7n, 7n) (constant in q without prismatic joints)."""
         lam = np.asarray(lam, dtype=float)
+        x = self._ext(q)
         out = np.zeros((self.nq, self.nq))
-        np.add.at(out, (self._hi, self._hk), self._hc * lam[self._hr])
+        np.add.at(out, (self._hi, self._hk), self._hc * x[self._ho] * lam[self._hr])
         return out
 
     def partition(self, q: np.ndarray, Cq: np.ndarray | None = None) -> Partition:

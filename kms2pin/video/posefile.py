@@ -1,8 +1,10 @@
 """A pose file: a user's starting pose for ``kms2pin track --init POSE.json``.
 
-``{"joints": {name: degrees}, "root": {"position": [x, y, z], "rotation": 3x3 |
-"quaternion_xyzw": [x, y, z, w]}}``; joints left out keep their rest angle, the root
-left out keeps its rest pose.  The position must be within +-1e6 (the spec's lengths'
+``{"joints": {name: value}, "root": {"position": [x, y, z], "rotation": 3x3 |
+"quaternion_xyzw": [x, y, z, w]}}``; the names are the trajectory CSV's
+(:attr:`Robot.coordinate_names`: a revolute joint's angle and a spherical joint's
+``<joint>_x|y|z`` angles in degrees, a prismatic joint's offset in spec length units);
+joints left out keep their rest values, the root left out keeps its rest pose.  The position must be within +-1e6 (the spec's lengths'
 range); the quaternion need not be unit (any non-zero one is normalized).
 """
 
@@ -43,19 +45,22 @@ def read_pose_json(robot: Robot, path: str | os.PathLike) -> np.ndarray:
     if unknown:
         raise InputDataError(f"{where}: unknown key(s) {', '.join(unknown)} (expected 'joints', 'root')")
     q = np.array(robot.q_rest, dtype=float)
-    model = robot.model
     joints = data.get("joints", {})
     if not isinstance(joints, dict):
         raise InputDataError(f"{where}: 'joints' must be an object {{name: degrees}}")
-    names = {model.names[j]: j for j in range(1, model.njoints) if model.joints[j].nq == 1}
+    kinds = {n: j.kind for j in robot.joints if j.kind != "free" for n in j.names}
     for name, deg in joints.items():
-        if name not in names:
+        if name not in kinds:
+            if f"{name}_x" in kinds:
+                raise InputDataError(f"{where}: joint '{name}' is spherical: give {name}_x, {name}_y and "
+                                     f"{name}_z (its X-Y-Z angles, degrees)")
             raise InputDataError(
-                f"{where}: '{robot.system.name}' has no revolute joint '{name}'{did_you_mean(name, names)}"
+                f"{where}: '{robot.system.name}' has no joint coordinate '{name}'{did_you_mean(name, kinds)}"
             )
+        unit = "spec length units" if kinds[name] == "prismatic" else "degrees"
         if not _number(deg):
-            raise InputDataError(f"{where}: joint '{name}': angle must be a number (degrees), not {deg!r}")
-        q[model.joints[names[name]].idx_q] = np.radians(float(deg))
+            raise InputDataError(f"{where}: joint '{name}': value must be a number ({unit}), not {deg!r}")
+    q = robot.with_coordinates(q, {name: float(v) for name, v in joints.items()})
     if "root" in data:
         root = data["root"]
         if robot.root != "free":

@@ -87,21 +87,22 @@ def segment_videos(
 
 def plot_joint_angles(robot: Robot, q: np.ndarray, path: str | os.PathLike, frames: Sequence[int] | None = None,
                       title: str | None = None) -> Path:
-    """PNG of every revolute joint angle (degrees) over the frame number, one line each,
-    the legend outside the axes (matplotlib, Agg backend)."""
+    """PNG of every joint angle (degrees: revolute angles and spherical joints' X-Y-Z
+    angles, :meth:`Robot.coordinates`) over the frame number, one line each, the legend
+    outside the axes (matplotlib, Agg backend)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     q = np.asarray(q, dtype=float).reshape(-1, robot.nq)
     x = np.arange(len(q)) if frames is None else np.asarray(frames)
-    model = robot.model
     fig = Figure(figsize=(9, 4.5), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    for jid in range(1, model.njoints):
-        j = model.joints[jid]
-        if j.nq == 1:
-            ax.plot(x, np.degrees(q[:, j.idx_q]), label=model.names[jid], linewidth=1.2)
+    columns = dict(zip(robot.coordinate_names, robot.coordinates(q).T))
+    for j in robot.joints:
+        if j.kind in ("revolute", "spherical"):
+            for name in j.names:
+                ax.plot(x, columns[name], label=name, linewidth=1.2)
     ax.set_xlabel("frame")
     ax.set_ylabel("joint angle (degrees)")
     ax.set_title(title or f"{robot.system.name}: joint angles")

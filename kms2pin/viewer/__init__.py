@@ -3,7 +3,7 @@
 * :class:`RobotView` / :func:`show` -- a robot drawn in meshcat (inner ellipsoids
   opaque, outer translucent, joint axes, inertial anchor, world axes), camera
   presets ``front``/``side``/``top``/``iso``, standalone HTML and PNG output.
-* :class:`JointControl` -- a page with one slider per revolute joint beside the
+* :class:`JointControl` -- a page with one slider per joint coordinate beside the
   meshcat viewer (interactive joint manipulation, §4.1).
 * :func:`show_static_update` -- static-update pictures as in figures 4.1-4.12.
 * :func:`animate`, :func:`write_animation_html` -- trajectories as animations.
@@ -27,7 +27,7 @@ from .animation import animate, write_animation_html
 from .control import JointControl
 from .errors import PoseError, ViewerError
 from .overlay import overlay_image
-from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints
+from .pose import JointSlider, joint_angles_deg, joint_sliders, parse_pose, pose_string, revolute_joints, slider_values
 from .render import find_chromium, read_png, screenshot
 from .robot_view import RobotView, close_visualizer, new_visualizer, save_html, save_png, show, visualizer
 from .scene import VIEWS, CameraSetup, ModelDrawing, frame_camera, projected_box, view_basis
@@ -37,6 +37,7 @@ __all__ = [
     "VIEWS",
     "CameraSetup",
     "JointControl",
+    "JointSlider",
     "ModelDrawing",
     "PoseError",
     "RobotView",
@@ -48,6 +49,7 @@ __all__ = [
     "find_chromium",
     "frame_camera",
     "joint_angles_deg",
+    "joint_sliders",
     "new_visualizer",
     "overlay_image",
     "parse_pose",
@@ -60,6 +62,7 @@ __all__ = [
     "screenshot",
     "show",
     "show_static_update",
+    "slider_values",
     "target_poses",
     "view_basis",
     "visualizer",

@@ -2,7 +2,8 @@
 by interactively manipulating joint angles with the graphical interface").
 
 :class:`JointControl` serves a small page (Python's ``http.server`` in a thread)
-with one slider per revolute joint, the meshcat viewer in an ``<iframe>``, a
+with one slider per joint coordinate (a revolute joint's angle, a spherical joint's
+three X-Y-Z angles, a prismatic joint's offset), the meshcat viewer in an ``<iframe>``, a
 reset-to-rest button, camera buttons and the configuration as a ``--pose``
 string.  Slider moves POST to the server, which updates :attr:`JointControl.q`
 and sends one ``set_transform`` per body to meshcat (no geometry upload).
@@ -10,8 +11,10 @@ and sends one ``set_transform`` per body to meshcat (no geometry upload).
 HTTP interface (JSON in, JSON out; errors are ``{"error": message}``):
 
 * ``GET /``        the page (``/?pose=name=deg,name=deg`` moves those sliders on load)
-* ``GET /state``   ``{"joints": [{"name", "deg", "min", "max"}], "pose", "meshcat_url", "updates"}``
-* ``POST /joint``  ``{"name": joint, "deg": angle}``
+* ``GET /state``   ``{"joints": [{"name", "value", "unit", "min", "max"}], "pose", "meshcat_url",
+  "updates"}`` (angular coordinates also carry their value as ``"deg"``)
+* ``POST /joint``  ``{"name": coordinate, "deg": angle}`` (or ``"value"``: degrees, or spec length
+  units for a prismatic joint)
 * ``POST /pose``   ``{"pose": "name=deg name=deg ..."}``
 * ``POST /reset``  back to the rest pose
 * ``POST /camera`` ``{"view": "front" | "side" | "top" | "iso"}`` re-frames the current pose
@@ -44,7 +47,7 @@ from ..jsonfile import parse_json
 from ..robot import Robot
 from ._meshcat_server import is_loopback, own_hosts
 from .errors import PoseError, ViewerError
-from .pose import joint_angles_deg, parse_pose, pose_string, revolute_joints
+from .pose import joint_angles_deg, joint_sliders, parse_pose, pose_string, slider_values
 from .robot_view import RobotView
 
 MAX_BODY = 64 * 1024
@@ -52,7 +55,7 @@ READ_TIMEOUT = 30.0  # seconds a request may take to arrive
 
 
 class JointControl:
-    """Sliders for ``robot``'s revolute joints, driving a meshcat scene.
+    """Sliders for ``robot``'s joint coordinates, driving a meshcat scene.
 
     Args:
         robot: the compiled robot.
@@ -69,7 +72,7 @@ class JointControl:
     def __init__(self, robot: Robot, vis: RobotView | meshcat.Visualizer | None = None, q=None, *,
                  camera: str = "front", host: str = "127.0.0.1", port: int = 0):
         self.robot = robot
-        self.joints = revolute_joints(robot)
+        self.joints = joint_sliders(robot)
         self._by_name = {j.name: j for j in self.joints}
         self._lock = threading.RLock()
         self.updates = 0
@@ -120,11 +123,11 @@ class JointControl:
 
     def state(self) -> dict:
         with self._lock:
-            angles = joint_angles_deg(self.robot, self.view.q)
+            values = slider_values(self.robot, self.view.q)
             return {
                 "model": self.robot.system.name,
-                "joints": [{"name": j.name, "deg": angles[j.name], "min": j.lower_deg, "max": j.upper_deg}
-                           for j in self.joints],
+                "joints": [{"name": j.name, "value": values[j.name], "unit": j.unit, "min": j.lower, "max": j.upper,
+                            **({"deg": values[j.name]} if j.unit == "deg" else {})} for j in self.joints],
                 "pose": pose_string(self.robot, self.view.q),
                 "meshcat_url": self.meshcat_url,
                 "updates": self.updates,
@@ -137,14 +140,15 @@ class JointControl:
             self.updates += 1
 
     def set_joint(self, name: str, deg: float) -> np.ndarray:
-        """Set one revolute joint (degrees; wrapped into [-180, 180] unless the joint has
-        limits, which it must then respect) and redraw."""
+        """Set one joint coordinate (a slider: degrees, wrapped into [-180, 180] unless the
+        joint has limits, which it must then respect; spec length units for a prismatic
+        joint) and redraw."""
         try:
             deg = float(deg)
         except (TypeError, ValueError):
-            raise PoseError(f"angle of joint '{name}' is not a number: {deg!r}") from None
+            raise PoseError(f"value of joint '{name}' is not a number: {deg!r}") from None
         if not math.isfinite(deg):
-            raise PoseError(f"angle of joint '{name}' must be finite, not {deg!r}")
+            raise PoseError(f"value of joint '{name}' must be finite, not {deg!r}")
         with self._lock:
             q = parse_pose(self.robot, f"{name}={deg!r}", self.view.q)
             self._apply(q)
@@ -195,11 +199,12 @@ class JointControl:
         rows = []
         for j in self.joints:
             n = html.escape(j.name)
+            unit, step = ("&deg;", "0.5") if j.unit == "deg" else ("", f"{(j.upper - j.lower) / 500:.3g}")
             rows.append(
-                f'<div class="joint"><label for="j-{n}">{n} <span class="range">[{j.lower_deg:g}&deg;, '
-                f'{j.upper_deg:g}&deg;]</span></label>'
-                f'<div class="row"><input type="range" id="j-{n}" data-joint="{n}" min="{j.lower_deg:g}" '
-                f'max="{j.upper_deg:g}" step="0.5" value="0"><output id="o-{n}">0</output></div></div>'
+                f'<div class="joint"><label for="j-{n}">{n} <span class="range">[{j.lower:g}{unit}, '
+                f'{j.upper:g}{unit}]</span></label>'
+                f'<div class="row"><input type="range" id="j-{n}" data-joint="{n}" min="{j.lower:g}" '
+                f'max="{j.upper:g}" step="{step}" value="0"><output id="o-{n}">0</output></div></div>'
             )
         meshcat_url = self.meshcat_url or ""
         frame = (f'<iframe id="viewer" src="{html.escape(meshcat_url)}"></iframe>' if meshcat_url
@@ -315,9 +320,10 @@ def _handler_for(control: JointControl):
             try:
                 data = read_body(self.headers, self.rfile)
                 if path == "/joint":
-                    if "name" not in data or "deg" not in data:
-                        raise RequestError(HTTPStatus.BAD_REQUEST, 'expected {"name": joint, "deg": angle}')
-                    control.set_joint(_field(data, "name", str, "a string"), _field(data, "deg", (int, float), "a number"))
+                    if "name" not in data or ("deg" not in data and "value" not in data):
+                        raise RequestError(HTTPStatus.BAD_REQUEST, 'expected {"name": joint, "deg": angle} (or "value")')
+                    key = "deg" if "deg" in data else "value"
+                    control.set_joint(_field(data, "name", str, "a string"), _field(data, key, (int, float), "a number"))
                 elif path == "/pose":
                     control.set_pose(_field(data, "pose", str, "a string", ""))
                 elif path == "/reset":
@@ -387,14 +393,14 @@ const poseBox = document.getElementById("pose");
 const errorBox = document.getElementById("error");
 let inFlight = false, pending = null;
 
-function fmt(x) { return (Math.round(x * 10) / 10).toString(); }
+function fmt(x) { return (Math.round(x * 1000) / 1000).toString(); }
 
 function show(state) {
   for (const j of state.joints) {
     const s = document.getElementById("j-" + j.name);
-    if (s && document.activeElement !== s) s.value = j.deg;
+    if (s && document.activeElement !== s) s.value = j.value;
     const o = document.getElementById("o-" + j.name);
-    if (o) o.textContent = fmt(j.deg);
+    if (o) o.textContent = fmt(j.value);
   }
   if (document.activeElement !== poseBox) poseBox.value = state.pose;
 }
@@ -420,7 +426,7 @@ async function pump() {
 for (const s of sliders) {
   s.addEventListener("input", () => {
     document.getElementById("o-" + s.dataset.joint).textContent = fmt(parseFloat(s.value));
-    pending = {name: s.dataset.joint, deg: parseFloat(s.value)};
+    pending = {name: s.dataset.joint, value: parseFloat(s.value)};
     pump();
   });
 }

@@ -22,7 +22,7 @@ the outer ellipsoids fill about 90 % of the frame for the given aspect ratio.
 Scene paths (relative to ``/meshcat/kms2pin``): ``<name>/bodies/<body>`` is the
 body frame (ellipsoid centre, body axes; set by ``set_transform`` only when the
 pose changes) with ``inner``, ``outer`` and ``axis_<joint>`` (the axis of each
-revolute joint whose parent is this body, at the joint point) below it;
+revolute or prismatic joint whose parent is this body, at the joint point) below it;
 ``<name>/world/axis_<root joint>`` and ``<name>/world/anchor`` are the root
 joint's axis and the inertial anchor; ``world_axes`` is the world-axes triad
 (x red, y green, z blue), drawn at the inertial anchor with world orientation
@@ -342,7 +342,7 @@ class ModelDrawing:
                 node["outer"].set_object(g.Ellipsoid(robot.outer(body).tolist()), outer_mat)
         if self.joint_axes:
             for j in robot.system.joints:
-                if j.kind != "revolute":
+                if j.kind not in ("revolute", "prismatic"):  # a hinge's axis or a slide's direction
                     continue
                 if j.parent is None:
                     if robot.root != "spec":

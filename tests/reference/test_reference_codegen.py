@@ -55,6 +55,9 @@ _SLOW = pytest.mark.slow
         ("fullbody", "spec"),
         ("jplhand", "spec"),
         ("fullbody", "free"),
+        ("mixed", "spec"),  # spherical and prismatic rows (the line rows are cubic)
+        ("gantry", "spec"),
+        pytest.param("human", "spec", marks=_SLOW),
         pytest.param("puma600", "free", marks=_SLOW),
         pytest.param("lowerbody", "free", marks=_SLOW),
         pytest.param("jplhand", "free", marks=_SLOW),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 import kms2pin
@@ -10,7 +11,16 @@ from kms2pin.errors import RobotError
 from kms2pin.reference import forward_kinematics, matrix_to_quat, quat_to_matrix, symbolic_model
 from kms2pin.reference.rotations import axis_angle_matrix
 
-from ._support import SPECS, load_system, random_configuration
+from ._support import SPECS, load_system, moving_joints, random_configuration
+
+
+def _spec(name: str):
+    """A spec path of specs/, or the parsed conftest.MIXED_JOINTS for ``mixed``."""
+    if name == "mixed":
+        from conftest import MIXED_JOINTS
+
+        return kms2pin.parse(MIXED_JOINTS)
+    return SPECS / f"{name}.kms"
 
 SEED = 7
 
@@ -70,7 +80,7 @@ def test_turning_a_revolute_joint_turns_its_child_right_handedly_about_the_joint
 
 
 def test_at_angle_zero_the_joint_axes_coincide_in_the_world(system):
-    angles = {j.name: 0.0 for j in system.joints if j.kind == "revolute"}
+    angles = {j.name: np.zeros(3) if j.kind == "spherical" else 0.0 for j in moving_joints(system)}
     q = forward_kinematics(system, angles)
     index = {b.name: k for k, b in enumerate(system.bodies)}
     for k, j in enumerate(system.joints):
@@ -83,15 +93,19 @@ def test_at_angle_zero_the_joint_axes_coincide_in_the_world(system):
 
 def test_reference_kinematics_agree_with_the_pinocchio_robot(spec_name, root):
     """Cross-check of conventions with the URDF/Pinocchio side (not used by the reference)."""
-    robot = kms2pin.load(SPECS / f"{spec_name}.kms", root=root)
+    robot = kms2pin.load(_spec(spec_name), root=root)
     rng = np.random.default_rng(SEED + 2)
+    kinds = {j.name: j.kind for j in robot.system.joints}
     for _ in range(3):
         qp = robot.random_configuration(rng)
         angles = {}
         for name in robot.joint_names:
             joint = robot.model.joints[robot.model.getJointId(name)]
-            if joint.nq == 1:
+            if kinds.get(name) in ("revolute", "prismatic"):
                 angles[name] = float(qp[joint.idx_q])
+            elif kinds.get(name) == "spherical":  # Pinocchio's quaternion (x, y, z, w) as a rotation vector
+                x, y, z, w = qp[joint.idx_q : joint.idx_q + 4]
+                angles[name] = pin.log3(quat_to_matrix([w, x, y, z]))
         pose = None
         if root == "free":
             qp[3:7] = rng.normal(size=4)

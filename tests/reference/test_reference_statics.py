@@ -33,7 +33,7 @@ def _noisy(q, rng, pos=0.1, quat=0.1):
 
 def _moved(system, angles, pose, rng, sigma, root="spec"):
     """FK at angles (and root pose) moved by about sigma radians / units."""
-    moved = {n: a + rng.normal(0, sigma) for n, a in angles.items()}
+    moved = {n: a + rng.normal(0, sigma, np.shape(a)) for n, a in angles.items()}
     if pose is not None:
         turn = quat_to_matrix(np.concatenate([[1.0], rng.normal(0, sigma / 2, 3)]) / np.sqrt(1 + 3 * sigma**2 / 4))
         pose = (pose[0] + rng.normal(0, sigma, 3), matrix_to_quat(turn @ quat_to_matrix(pose[1])))
@@ -118,7 +118,9 @@ def test_an_invalid_start_is_refused_naming_the_violated_constraint():
 
 # ---------------------------------------------------------------------- the solver
 @pytest.mark.parametrize(
-    "spec_name, root", [("puma600", "spec"), ("fullbody", "spec"), ("jplhand", "free"), ("lowerbody", "free")]
+    "spec_name, root",
+    [("puma600", "spec"), ("fullbody", "spec"), ("jplhand", "free"), ("lowerbody", "free"), ("human", "spec"),
+     ("gantry", "free"), ("mixed", "spec")],
 )
 def test_targets_from_a_nearby_valid_configuration_are_recovered_exactly(spec_name, root):
     rng = np.random.default_rng(SEED + 3)
@@ -133,7 +135,9 @@ def test_targets_from_a_nearby_valid_configuration_are_recovered_exactly(spec_na
 
 
 @pytest.mark.parametrize(
-    "spec_name, root", [("puma600", "spec"), ("fullbody", "spec"), ("fullbody", "free"), ("jplhand", "spec")]
+    "spec_name, root",
+    [("puma600", "spec"), ("fullbody", "spec"), ("fullbody", "free"), ("jplhand", "spec"), ("human", "free"),
+     ("gantry", "spec"), ("mixed", "spec"), ("mixed", "free")],
 )
 def test_noisy_targets_end_in_a_valid_configuration_where_b_di_transpose_q_vanishes(spec_name, root):
     rng = np.random.default_rng(SEED + 4)

@@ -9,17 +9,20 @@ import sympy as sp
 from kms2pin.reference import SymbolicModel, forward_kinematics, symbolic_model
 from kms2pin.reference.symbolic import Partition
 
-from ._support import load_system, random_configuration, revolute_names
+from ._support import JOINT_DOF, load_system, moving_joints, random_configuration, revolute_names
 
 SEED = 11
 
 
 def _expected_rows(system, root):
+    """Per body its Euler parameter norm; per joint 3 position rows and 3 axis rows
+    (revolute) or 9 orientation rows (fixed), 3 position rows (spherical), or 9
+    orientation rows and 2 line rows (prismatic)."""
     rows = len(system.bodies)
     for j in system.joints:
         if root == "free" and j.parent is None:
             continue
-        rows += 6 if j.kind == "revolute" else 12
+        rows += {"revolute": 6, "fixed": 12, "spherical": 3, "prismatic": 11}[j.kind]
     return rows
 
 
@@ -29,7 +32,9 @@ def test_there_is_one_labelled_row_per_constraint_with_all_redundant_rows(system
     assert len(set(model.labels)) == model.nc
     for j in system.joints:
         present = f"{j.name} position x" in model.labels
-        assert present == (not (root == "free" and j.parent is None))
+        assert present == (not (root == "free" and j.parent is None) and j.kind != "prismatic")
+        if j.kind == "prismatic" and not (root == "free" and j.parent is None):
+            assert f"{j.name} line n1" in model.labels and f"{j.name} line n2" in model.labels
 
 
 def test_fullbody_row_labels_read_as_joint_and_component():
@@ -41,8 +46,9 @@ def test_fullbody_row_labels_read_as_joint_and_component():
     assert model.coordinate_labels[7:10] == ("leftThigh.mu_x", "leftThigh.mu_y", "leftThigh.mu_z")
 
 
-def test_the_degrees_of_freedom_are_the_revolute_joints_plus_six_for_a_free_root(system, root, model):
-    assert model.dof == len(revolute_names(system, root)) + (6 if root == "free" else 0)
+def test_the_degrees_of_freedom_are_the_joints_plus_six_for_a_free_root(system, root, model):
+    """One per revolute or prismatic joint, three per spherical joint."""
+    assert model.dof == sum(JOINT_DOF[j.kind] for j in moving_joints(system, root)) + (6 if root == "free" else 0)
 
 
 def test_constraint_jacobian_matches_central_finite_differences(system, root, model):

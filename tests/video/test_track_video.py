@@ -166,7 +166,7 @@ def test_pose_json(scene, tmp_path):
     q2 = read_pose_json(robot, tmp_path / "r.json")
     assert np.allclose(q2[:3], [0, 1, 9]) and np.allclose(pin.XYZQUATToSE3(q2[:7]).rotation, R)
     assert np.allclose(q2[7:], robot.q_rest[7:])
-    for bad, msg in (({"joints": {"leftKnee": 3}}, "no revolute joint 'leftKnee'"),
+    for bad, msg in (({"joints": {"leftKnee": 3}}, "no joint coordinate 'leftKnee'"),
                      ({"root": {"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 2]]}}, "not a rotation"),
                      ({"joints": {"leftShin_knee": "x"}}, "must be a number"),
                      ({"pose": 1}, "unknown key")):

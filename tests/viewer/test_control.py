@@ -148,3 +148,42 @@ def test_meshcat_page_shows_the_new_configuration(control, tmp_path):
     a, b = inner_mask(read_png(tmp_path / "rest.png")), inner_mask(read_png(tmp_path / "moved.png"))
     assert a.sum() > 2000 and b.sum() > 2000
     assert (a ^ b).sum() > 0.1 * a.sum()
+
+
+@pytest.fixture(scope="module")
+def mixed_control(control):
+    """The control page of a model with every joint type, drawn into the same meshcat server."""
+    from conftest import MIXED_JOINTS
+
+    import kms2pin
+
+    ctl = JointControl(kms2pin.load(kms2pin.parse(MIXED_JOINTS)), control.vis)
+    try:
+        yield ctl
+    finally:
+        ctl.close()
+
+
+def test_a_spherical_joint_has_three_sliders_and_a_prismatic_one_a_length(mixed_control):
+    _, page = get(mixed_control.url)
+    for axis, (lo, hi) in zip("xyz", ((-180, 180), (-90, 90), (-180, 180))):
+        assert f'b_ball_{axis} <span class="range">[{lo}&deg;, {hi}&deg;]</span>' in page
+    assert 'c_slide <span class="range">[-0.4, 0.6]</span>' in page and 'id="j-b_ball"' not in page
+    status, state = post(mixed_control.url + "joint", {"name": "b_ball_y", "value": 30})
+    assert status == 200
+    joints = {j["name"]: j for j in state["joints"]}
+    assert joints["b_ball_y"]["value"] == pytest.approx(30) and joints["b_ball_y"]["unit"] == "deg"
+    status, state = post(mixed_control.url + "joint", {"name": "c_slide", "value": 0.25})
+    joints = {j["name"]: j for j in state["joints"]}
+    assert status == 200 and joints["c_slide"]["value"] == 0.25 and joints["c_slide"]["unit"] == "length"
+    assert "deg" not in joints["c_slide"] and "c_slide=0.25" in state["pose"].split()
+    status, body = post(mixed_control.url + "joint", {"name": "c_slide", "value": 2})
+    assert status == 400 and "outside its limits -0.4..0.6" in body["error"]
+
+
+@pytest.mark.browser
+def test_page_sliders_of_the_new_joints_drive_the_model_in_a_browser(mixed_control):
+    robot = mixed_control.robot
+    dump_dom(mixed_control.url + "?pose=b_ball_z=-25,c_slide=0.35")
+    values = dict(zip(robot.coordinate_names, robot.coordinates(mixed_control.q)))
+    assert values["b_ball_z"] == pytest.approx(-25, abs=1e-9) and values["c_slide"] == pytest.approx(0.35)

@@ -15,7 +15,7 @@ from ._util import joint_q, load
 def test_revolute_joints_are_the_sliders(lowerbody):
     names = [j.name for j in revolute_joints(lowerbody)]
     assert names == list(lowerbody.joint_names)  # all 7 lower-body joints are revolute
-    assert all(j.lower_deg == -180 and j.upper_deg == 180 for j in revolute_joints(lowerbody))
+    assert all(j.lower == -180 and j.upper == 180 for j in revolute_joints(lowerbody))
 
 
 def test_pose_string_round_trip(lowerbody):
@@ -72,7 +72,7 @@ def test_sliders_and_poses_follow_the_spec_limits():
     from kms2pin.robot import load as load_spec
 
     robot = load_spec(Path(__file__).resolve().parents[2] / "specs" / "anatomical" / "lowerbody.kms")
-    ranges = {j.name: (j.lower_deg, j.upper_deg) for j in revolute_joints(robot)}
+    ranges = {j.name: (j.lower, j.upper) for j in revolute_joints(robot)}
     assert ranges["leftShin_knee"] == (0.0, 150.0)
     assert ranges["leftThigh_hip"] == (-30.0, 120.0)
     assert ranges["pelvis_inertialAnchor"] == (-180.0, 180.0)  # no limits in the spec
