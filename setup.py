@@ -1,8 +1,8 @@
 """Build the optional native kernels of the static update (kms2pin/_kernels.c).
 
 Everything else is configured in pyproject.toml.  The extension is optional: without a
-C compiler the install still succeeds and kms2pin uses its NumPy code instead
-(``kms2pin.virtual_work.NATIVE`` says which is in use).
+C compiler the install still succeeds and kms2pin uses the kernels' NumPy twins instead
+(kms2pin/_numpy_kernels.py; ``kms2pin.native.ENABLED`` says which is in use).
 """
 
 from setuptools import Extension, setup

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import numpy as np
 import pinocchio as pin
 
+from kms2pin import native
 from kms2pin.ecm import Camera, body_bbox, projected_density, render_mask
 from kms2pin.ecm.mstep import body_image
 from kms2pin.native import kernels
@@ -82,7 +83,7 @@ def main() -> None:
     show(f"projected_density, {w}x{h} px bbox region", region)
     show("body_bbox + projected_density on that region", with_box)
     show(f"e_step, 17 bodies (mean bbox {np.mean(areas):.0f} px, {int(mask.sum())} fg px)", estep)
-    if kernels is not None:
+    if native.ENABLED:  # the C kernels' vectorized and scalar loops
         kernel_ratios(cam, pose, inner, rng)
 
 

@@ -34,9 +34,8 @@ import pinocchio as pin
 from scipy.optimize import least_squares
 
 import kms2pin
-from kms2pin import reference
+from kms2pin import native, reference
 from kms2pin.virtual_work import (
-    NATIVE,
     _Evaluator,
     _hold_active,
     perturbed_targets,
@@ -169,7 +168,7 @@ def main() -> None:
               f"fast success {row['fast'][3] * 100:.1f} % (target >= 99 %)")
     print("(lsq 'iterations' are residual evaluations; reference iterations are Newton steps; the reference's "
           "'x fast' is against the fast path's median on the same cases)")
-    print(f"fast path kernels: {'native C (kms2pin/_kernels.c)' if NATIVE else 'NumPy'}")
+    print(f"fast path kernels: {'native C (kms2pin/_kernels.c)' if native.ENABLED else 'NumPy'}")
 
 
 if __name__ == "__main__":

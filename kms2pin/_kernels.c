@@ -4,9 +4,10 @@
  * Jacobians; its per-iteration arithmetic (maximal coordinates -> springs ->
  * B = d q_max / d q -> B^T Q and the Newton matrix) is a few hundred flops on
  * 15 bodies, so from NumPy it is dominated by call overhead.  This module does
- * the same arithmetic in one C call.  It mirrors, line for line, the NumPy code
- * in virtual_work._Evaluator (which stays the fallback when no compiler was
- * available at install time); the tests check both against the SymPy reference.
+ * the same arithmetic in one C call.  Each function has a NumPy twin of the same
+ * name in kms2pin/_numpy_kernels.py (the fallback when no compiler was available
+ * at install time; kms2pin.native chooses); the tests check the two against each
+ * other and the static update against the SymPy reference.
  *
  * Layout: body coordinates X and targets T are (n, 7) [px, py, pz, x, y, z, w]
  * (Pinocchio's XYZQUAT order), J is Pinocchio's data.J (6 x nv, world frame:
@@ -661,7 +662,7 @@ static int contiguous_n3(const Buf *b)
 }
 
 /* One pixel of a sharp silhouette s = sigma(h) against the mask y, o of it explained by
- * the other bodies (kms2pin.ecm.mstep._view_terms): returns the residual
+ * the other bodies (kms2pin._numpy_kernels._edge_sums): returns the residual
  * r = y - o - (1 - o) s, sets *s and *w = (1 - o) s (1 - s) inv, the weight of dh in dr,
  * which is 0 on a saturated edge (|h| >= H_CUT: no gradient).  s and 1 - s come from
  * one exp, without overflow. */
@@ -673,7 +674,7 @@ static inline double edge_term(double h, double inv, double y, double o, double 
     return y - o - (1.0 - o) * *s;
 }
 
-/* The per-pixel sums of one view (kms2pin.ecm.mstep._evaluate), added to cost,
+/* The per-pixel sums of one view (kms2pin.ecm.mstep.body_cost), added to cost,
  * evidence, g6 (6) and Hu (the 21 entries of the upper triangle of H, row by row). */
 static void view_accumulate(const View *v, const double *A, const double *t, int jac, double *cost_io,
                             double *evid_io, double *g6, double *Hu)
@@ -778,7 +779,7 @@ static PyObject *silhouette_fit(PyObject *self, PyObject *const *args, Py_ssize_
 }
 
 /* scale_fit(dirs, A, e, R, inner, inv, y, o, weight|None, H, grad) -> cost
- * kms2pin.ecm.mstep._scale_evaluate for one view: the silhouette cost of silhouette_fit
+ * kms2pin.ecm.mstep.body_scale_cost for one view: the silhouette cost of silhouette_fit
  * in the log semi-axes of the body's inner ellipsoid, its pose held.  With x* the
  * closest approach in the body frame in semi-axes, x_k = (R^T q*)_k / L_k, a^2 = |x|^2
  * and d(a^2)/d log L_k = -2 x_k^2; adds J^T wt J to H (3x3) and J^T wt r to grad (3),
@@ -833,7 +834,7 @@ static PyObject *scale_fit(PyObject *self, PyObject *const *args, Py_ssize_t nar
 }
 
 /* ------------------------------------------------------------------ ECM E-step
- * kms2pin.ecm.tracker.Tracker.iterate's E-step per pixel: each body's sharp
+ * kms2pin.ecm.estep.UnionEStep's E-step per pixel: each body's sharp
  * silhouette s = sigma(h) on its box, the union's log(1 - M) = sum_j log(1 - s_j)
  * = -sum_j softplus(h_j) per camera, then for every body the share of each pixel
  * the others explain, o = 1 - exp(log(1 - M) + softplus(h_i)). */
@@ -1042,7 +1043,7 @@ static PyObject *estep_view(PyObject *self, PyObject *const *args, Py_ssize_t na
 
 /* estep_camera(rays (H,W,3), A (n,9), e (n,3), inv (n,), box (n,4), offset (n+1,), mask,
  *              log_free (H,W), dirs_out (N,3), sp_out (N,), o_out (N,), y_out (N,))
- * The E-step of one camera (kms2pin.ecm.tracker.Tracker.e_step) in one call, for bodies
+ * The E-step of one camera (kms2pin.ecm.estep.UnionEStep) in one call, for bodies
  * that all have boxes (u0, v0, u1, v1; an empty box for a body out of view): body i's
  * pixels are rows offset[i]..offset[i+1] of the outputs, its box row by row.  Per body,
  * its rays are copied out of the ray grid and estep_body's loop runs; then per body
@@ -1140,7 +1141,7 @@ static PyObject *estep_camera(PyObject *self, PyObject *const *args, Py_ssize_t 
 
 /* pose_springs(J, X, T, K, S, A_out, g_out)
  * The tracker's static update with a full 6x6 spring per body
- * (kms2pin.ecm.tracker.Tracker._static_update_full): body i's pose error
+ * (kms2pin.virtual_work.pose_spring_update): body i's pose error
  * e_i = (t_i - t'_i, log(R_i R'_i^T)) from X and T (n, 7) [t, x, y, z, w], its
  * LOCAL_WORLD_ALIGNED Jacobian J_i (6 x nv) at the body centre from Pinocchio's data.J
  * (world frame) and the support mask S (n, nv); K (n, 36) row-major 6x6 stiffness.
@@ -1236,8 +1237,9 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
 
 /* ------------------------------------------------------------------ one body's M-step
  * kms2pin.ecm.mstep.fit_body in C: damped Gauss-Newton on the body's world pose
- * (translation, rotation vector), every camera's view at once.  The Python function
- * is the definition; this is the same loop with the per-pixel sums of silhouette_fit. */
+ * (translation, rotation vector), every camera's view at once.  Its NumPy twin
+ * (kms2pin._numpy_kernels.fit_body) is the same loop with the per-pixel sums of
+ * silhouette_fit. */
 
 /* cost, evidence, and (jac) grad (6) and H (6x6, row-major) of one pose over all views */
 static void views_eval(const View *views, Py_ssize_t nv, const double *R, const double *t, const double *inner,

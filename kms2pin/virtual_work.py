@@ -28,13 +28,8 @@ import numpy as np
 import pinocchio as pin
 
 from .errors import RobotError, TargetError, did_you_mean
-from .native import ENABLED as _NATIVE_ENABLED
-from .native import kernels as _kernels
+from .native import kernels
 from .robot import Robot
-
-#: Whether the static update runs its per-iteration arithmetic in the C kernels
-#: (:mod:`kms2pin.native`; ``KMS2PIN_NATIVE=0`` forces the NumPy code below).
-NATIVE = _NATIVE_ENABLED
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -145,25 +140,6 @@ def stiffness_array(robot: Robot, stiffness: float | np.ndarray, mask: np.ndarra
     return k
 
 
-_EPS = np.zeros((3, 9))  # v @ _EPS is [v]x flattened (eq. 2.3)
-for _i, _j, _k, _sgn in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 2, 0, -1), (1, 0, 2, 1), (2, 0, 1, -1), (2, 1, 0, 1)):
-    _EPS[_k, 3 * _i + _j] = _sgn
-
-# E(theta) = [-v^T; theta0 I - [v]x] (theta = (theta0, v)) is linear in theta: E = theta @ _EBASIS
-# reshaped (4, 3); d theta/dt = 1/2 E(theta) omega for a world-frame omega
-_EBASIS = np.zeros((4, 12))
-for _row, _entries in enumerate(
-    (((1, -1), (2, -1), (3, -1)), ((0, 1), (3, 1), (2, -1)), ((3, -1), (0, 1), (1, 1)), ((2, 1), (1, -1), (0, 1)))
-):
-    for _col, (_comp, _sgn) in enumerate(_entries):
-        _EBASIS[_comp, 3 * _row + _col] = _sgn
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices (n, 3, 3) of vectors (n, 3) (eq. 2.3)."""
-    return (v @ _EPS).reshape(-1, 3, 3)
-
-
 class _Structure:
     """Per-robot constants: which velocity columns move each body, and joint blocks."""
 
@@ -183,9 +159,8 @@ class _Structure:
             col_joint[jm.idx_v : jm.idx_v + jm.nv] = jid
         # Hessian entries (a <= b) pair an ancestor column a with a descendant b; the
         # columns of one multi-DoF joint (the free flyer) take the symmetric average.
-        self.same_joint = col_joint[:, None] == col_joint[None, :]
-        self.same_joint_f = self.same_joint.astype(float)  # the native kernel's form
-        # each body frame as (parent joint, fixed placement in it), for the native kernel
+        self.same_joint = (col_joint[:, None] == col_joint[None, :]).astype(float)
+        # each body frame as (parent joint, fixed placement in it)
         self.frame_joint = np.array([float(model.frames[f].parentJoint) for f in robot.frame_ids])
         self.frame_offset = np.array([pin.SE3ToXYZQUAT(model.frames[f].placement) for f in robot.frame_ids])
         limited = [j for j in robot.joints if j.nq == 1 and np.isfinite(robot.lower_limits[j.idx_q])]
@@ -204,9 +179,6 @@ class _Structure:
             # (q indices, v indices, lower, upper, and the values at or below / above which a
             # coordinate counts as at its limit)
             self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
-        self.multi_dof = any(model.joints[j].nv > 1 for j in range(1, model.njoints))
-        self.upper = np.triu(np.ones((nv, nv)))
-        self.strict_upper = np.triu(np.ones((nv, nv)), 1)
 
 
 _STRUCTURES: weakref.WeakKeyDictionary[Robot, _Structure] = weakref.WeakKeyDictionary()
@@ -219,17 +191,11 @@ def _structure(robot: Robot) -> _Structure:
     return s
 
 
-def body_frames(model: pin.Model, data: pin.Data, frames: Sequence[int], s: _Structure, native: bool) -> np.ndarray:
-    """(n, 7) [mu, x, y, z, w] of the body frames after a forward pass into ``data``: in C,
-    the joint placements (one Pinocchio call for all) times each frame's fixed offset;
-    otherwise Pinocchio's own frame placements."""
-    X = np.empty((len(frames), 7))
-    if native:
-        _kernels.frame_coordinates([pin.SE3ToXYZQUAT(M) for M in data.oMi.tolist()], s.frame_joint, s.frame_offset, X)
-    else:
-        pin.updateFramePlacements(model, data)
-        oMf = data.oMf
-        X[:] = [pin.SE3ToXYZQUAT(oMf[f]) for f in frames]
+def body_frames(data: pin.Data, s: _Structure) -> np.ndarray:
+    """(n, 7) [mu, x, y, z, w] of the body frames after a forward pass into ``data``: the
+    joint placements (one Pinocchio call for all) times each frame's fixed offset."""
+    X = np.empty((len(s.frame_joint), 7))
+    kernels.frame_coordinates([pin.SE3ToXYZQUAT(M) for M in data.oMi.tolist()], s.frame_joint, s.frame_offset, X)
     return X
 
 
@@ -241,98 +207,41 @@ class _Evaluator:
     not depend on that order nor on the quaternions' signs.
     """
 
-    def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray, native: bool | None = None):
+    def __init__(self, robot: Robot, targets: np.ndarray, k: np.ndarray):
         self.model, self.data = robot.model, robot.data
-        self.frames = robot.frame_ids
-        self.n = len(self.frames)
+        self.n = len(robot.frame_ids)
         self.s = _structure(robot)
-        self.native = NATIVE if native is None else (bool(native) and _kernels is not None)
         order = [0, 1, 2, 4, 5, 6, 3]  # [mu, theta0..3] -> [mu, x, y, z, w]
         self.targets = targets[:, order]
         self.k = k[:, order]
-        if self.native:
-            return
-        self.sqrt_k = np.sqrt(self.k).reshape(-1, 1)
-        nz = self.k[self.k > 0]
-        self.k_scalar = float(nz[0]) if len(nz) and (self.k == nz[0]).all() else None
-        self.support3 = self.s.support[:, None, :]
-
-    def residual(self, X: np.ndarray) -> np.ndarray:
-        """q_max - q'_aligned in the internal layout (targets on the primary's side, §2.2.1)."""
-        diff = X - self.targets
-        flip = np.einsum("ij,ij->i", self.targets[:, 3:], X[:, 3:]) < 0
-        if flip.any():
-            diff[flip, 3:] = X[flip, 3:] + self.targets[flip, 3:]
-        return diff
 
     def linearize(self, q: np.ndarray, hessian: bool = True):
         """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, internal coords."""
         return self.linearize_full(q, hessian)[:4]
 
     def linearize_full(self, q: np.ndarray, hessian: bool = True):
-        """:meth:`linearize` plus the aligned residual q_max - q', ||grad||^2 and max diag H."""
+        """:meth:`linearize` plus the aligned residual q_max - q', ||grad||^2 and max diag H
+        (the ``linearize`` kernel)."""
         pin.computeJointJacobians(self.model, self.data, q)
-        X = body_frames(self.model, self.data, self.frames, self.s, self.native)
-        if self.native:  # the same arithmetic in one C call (kms2pin/_kernels.c)
-            nv = self.model.nv
-            grad, H, diff = np.empty(nv), np.empty((nv, nv)), np.empty((self.n, 7))
-            energy, gsq, hmax = _kernels.linearize(
-                self.data.J, X, self.targets, self.k, self.s.support, self.s.same_joint_f, grad, H, diff, hessian
-            )
-            return energy, grad, H, X, diff, gsq, hmax
-        p, theta = X[:, :3], X[:, 3:]
-        diff = self.residual(X)
-        rho = self.k * diff  # -F_i (eq. 2.33)
-        energy = 0.5 * float(rho.ravel() @ diff.ravel())
-        n, nv = self.n, self.model.nv
-        Jw = self.data.J  # world frame: velocity of the point at the origin; omega
-        S = self.support3  # (n, 1, nv)
-        Jang = Jw[3:][None] * S  # (n, 3, nv)
-        Jlin = (Jw[:3][None] - _skew(p) @ Jw[3:][None]) * S  # v(p) = v0 + omega x p
-        E = (theta @ _EBASIS_XYZW).reshape(n, 4, 3)
-        B = np.concatenate([Jlin, 0.5 * (E @ Jang)], axis=1).reshape(7 * n, nv)  # d q_max / d q
-        grad = B.T @ rho.ravel()
-        if self.k_scalar is not None:  # the usual case: one stiffness for every coordinate
-            H = self.k_scalar * (B.T @ B)
-        else:
-            Bk = B * self.sqrt_k
-            H = Bk.T @ Bk
-        if hessian:
-            H += self.second_order(rho, theta, E, Jlin, Jang)
-        return energy, grad, H, X, diff, float(grad @ grad), float(H.diagonal().max())
+        X = body_frames(self.data, self.s)
+        nv = self.model.nv
+        grad, H, diff = np.empty(nv), np.empty((nv, nv)), np.empty((self.n, 7))
+        energy, gsq, hmax = kernels.linearize(
+            self.data.J, X, self.targets, self.k, self.s.support, self.s.same_joint, grad, H, diff, hessian
+        )
+        return energy, grad, H, X, diff, gsq, hmax
 
-    def second_order(self, rho, theta, E, Jlin, Jang) -> np.ndarray:
-        """sum_i rho_i . d^2 q_max,i / dq_a dq_b (the Newton term Gauss-Newton drops).
-
-        For a <= b (column a an ancestor of b): positions rho . (omega_a x J_b);
-        Euler parameters 1/4 [g . (omega_a x omega_b) - (rho_theta . theta)(omega_a . omega_b)]
-        with g = E(theta)^T rho_theta; mirrored below the diagonal.  As bilinear forms of
-        the angular columns: omega_a^T (-[rho_mu]x J_b + 1/4 (-[g]x - c I) omega_b).
-        """
-        n, nv = self.n, self.model.nv
-        g = (rho[:, None, 3:] @ E)[:, 0]  # E^T rho_theta
-        Z = _skew(-g)
-        Z[:, _DIAG, _DIAG] -= np.einsum("ij,ij->i", rho[:, 3:], theta)[:, None]
-        Y = _skew(-rho[:, :3]) @ Jlin + 0.25 * (Z @ Jang)
-        A = Jang.reshape(3 * n, nv).T @ Y.reshape(3 * n, nv)
-        if self.s.multi_dof:
-            A = np.where(self.s.same_joint, 0.5 * (A + A.T), A)
-        return A * self.s.upper + (A * self.s.strict_upper).T
-
-    def forces(self, X: np.ndarray, diff: np.ndarray | None = None) -> np.ndarray:
+    def forces(self, X: np.ndarray, diff: np.ndarray) -> np.ndarray:
         """Spring forces k (q' - q) (eq. 2.33), (n, 7) in the [mu, theta0..3] layout,
-        with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates.
-        ``diff`` is the aligned residual at X if already known."""
-        F = (self.k * (self.residual(X) if diff is None else diff))[:, _TO_THESIS]
+        with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates,
+        from the body coordinates X and their aligned residual ``diff`` (:meth:`linearize_full`)."""
+        F = (self.k * diff)[:, _TO_THESIS]
         F[X[:, 6] >= 0] *= -1.0  # -k diff, Euler parameters' sign flipped with theta0 < 0
         F[X[:, 6] < 0, :3] *= -1.0
         return F
 
 
-_DIAG = np.arange(3)
 _TO_THESIS = [0, 1, 2, 6, 3, 4, 5]  # [mu, x, y, z, w] -> [mu, theta0..3]
-# E for (x, y, z, w): the same rows and input components, reordered
-_EBASIS_XYZW = _EBASIS.reshape(4, 4, 3)[[1, 2, 3, 0]][:, [1, 2, 3, 0]].reshape(4, 12)
 
 
 def static_update(
@@ -383,7 +292,6 @@ def static_update(
     k = stiffness_array(robot, stiffness, mask)
     ev = _Evaluator(robot, tgt, k)
     nv = robot.model.nv
-    eye = np.eye(nv)
     step = np.empty(nv)
     bounds = ev.s.limits
     if bounds is not None:
@@ -408,16 +316,9 @@ def static_update(
         scale = max(hmax, 1e-12)
         accepted = False
         for _ in range(40):
-            if ev.native:  # Cholesky: fails exactly when H + lam I is not positive definite
-                if not _kernels.solve_shifted(H, grad, lam * scale, step):
-                    lam = max(lam * 10.0, 1e-8)
-                    continue
-            else:
-                try:
-                    step = np.linalg.solve(H + (lam * scale) * eye, -grad)
-                except np.linalg.LinAlgError:
-                    lam = max(lam * 10.0, 1e-8)
-                    continue
+            if not kernels.solve_shifted(H, grad, lam * scale, step):  # not positive definite
+                lam = max(lam * 10.0, 1e-8)
+                continue
             if not step @ grad < 0:  # not a descent direction: H + lam I is not positive definite
                 lam = max(lam * 10.0, 1e-8)
                 continue
@@ -544,7 +445,6 @@ def pose_spring_update(
     model, data = robot.model, robot.data
     n, nv = len(targets), model.nv
     st = _structure(robot)
-    native = NATIVE
     K36 = K.reshape(n, 36)
     limited = st.limits is not None
     if limited:
@@ -555,12 +455,9 @@ def pose_spring_update(
     def springs(q):
         """Newton system A, g and energy of the springs (and terms) at q."""
         pin.computeJointJacobians(model, data, q)
-        X = body_frames(model, data, robot.frame_ids, st, native)
-        if native:  # the lines below in one C call (kms2pin/_kernels.c)
-            A, g = np.empty((nv, nv)), np.empty(nv)
-            energy = _kernels.pose_springs(data.J, X, targets, K36, st.support, A, g)
-        else:
-            A, g, energy = _pose_springs(data.J, X, targets, K, st.support)
+        X = body_frames(data, st)
+        A, g = np.empty((nv, nv)), np.empty(nv)
+        energy = kernels.pose_springs(data.J, X, targets, K36, st.support, A, g)
         if not ks:
             ks.extend(t.stiffness(A) for t in terms)
         for t, k in zip(terms, ks):
@@ -569,7 +466,7 @@ def pose_spring_update(
 
     A, g, energy = springs(q)
     for _ in range(iterations):
-        dq = _newton_step(A, g, native)
+        dq = _newton_step(A, g)
         if limited:
             # a joint at a limit that the step pushes further is held there, and the
             # step is solved for the others: its clipped step need not lower the energy
@@ -578,7 +475,7 @@ def pose_spring_update(
             if blocked.any():
                 free = ~blocked
                 dq = np.zeros(nv)
-                dq[free] = _newton_step(np.ascontiguousarray(A[np.ix_(free, free)]), g[free], native)
+                dq[free] = _newton_step(np.ascontiguousarray(A[np.ix_(free, free)]), g[free])
         for _ in range(BACKTRACK + 1):
             q_new = pin.integrate(model, q, dq)
             if limited:  # projected Gauss-Newton: the spec's joint limits
@@ -595,51 +492,13 @@ def pose_spring_update(
     return q
 
 
-def _pose_springs(Jw: np.ndarray, X: np.ndarray, T: np.ndarray, K: np.ndarray, support: np.ndarray):
-    """Newton matrix, gradient and energy of the pose springs (NumPy; the C kernel
-    ``pose_springs`` is the same arithmetic)."""
-    n, nv = len(X), Jw.shape[1]
-    # pose error e_i = (t_i - t'_i, log(R_i R'_i^T)) in world axes
-    e = np.empty((n, 6))
-    e[:, :3] = X[:, :3] - T[:, :3]
-    e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
-    # LOCAL_WORLD_ALIGNED Jacobians at the body centres from data.J (world frame)
-    J = np.empty((n, 6, nv))
-    J[:, 3:] = Jw[3:][None] * support[:, None, :]
-    J[:, :3] = (Jw[:3][None] + np.cross(Jw[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * support[:, None, :]
-    KJ = (K @ J).reshape(6 * n, nv)
-    A = J.reshape(6 * n, nv).T @ KJ
-    g = KJ.T @ e.ravel()
-    return A, g, 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
-
-
-def _newton_step(A: np.ndarray, g: np.ndarray, native: bool) -> np.ndarray:
+def _newton_step(A: np.ndarray, g: np.ndarray) -> np.ndarray:
     """The Gauss-Newton step -A⁻¹ g, with A shifted by 1e-9 of its largest diagonal entry
-    (Cholesky in C, else LU; ``A`` may be changed)."""
+    (Cholesky, else LU if A is not positive definite; ``A`` may be changed)."""
     n = len(g)
     shift = 1e-9 * max(float(A.diagonal().max()), 1e-300) if n else 0.0
     dq = np.empty(n)
-    if not (native and _kernels.solve_shifted(A, g, shift, dq)):
+    if not kernels.solve_shifted(A, g, shift, dq):
         A[np.diag_indices(n)] += shift
         dq = -np.linalg.solve(A, g)
     return dq
-
-
-def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ⊗ conj(b) for (n, 4) quaternions in (x, y, z, w) order."""
-    av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
-    out = np.empty_like(a)
-    out[:, 3:] = aw * bw + np.sum(av * bv, axis=1, keepdims=True)
-    out[:, :3] = bw * av - aw * bv - np.cross(av, bv)
-    return out
-
-
-def _log_quat(qr: np.ndarray) -> np.ndarray:
-    """Rotation vectors (n, 3) of unit quaternions (n, 4), (x, y, z, w): angle in [0, pi]."""
-    v, w = qr[:, :3], qr[:, 3]
-    sign = np.where(w < 0, -1.0, 1.0)
-    v, w = v * sign[:, None], w * sign
-    nv = np.linalg.norm(v, axis=1)
-    small = nv < 1e-12
-    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv))
-    return v * scale[:, None]

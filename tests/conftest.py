@@ -1,6 +1,8 @@
 from __future__ import annotations
 
+import importlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import NoReturn
@@ -65,22 +67,20 @@ def skip_or_fail_in_ci(reason: str) -> NoReturn:
 def require_kernels() -> ModuleType:
     """The C kernels (``kms2pin._kernels``, built from kms2pin/_kernels.c by the install):
     a test needing them is skipped without them locally and fails in CI."""
-    from kms2pin.native import kernels
+    from kms2pin import native
 
-    if kernels is None:
+    if not native.BUILT:
         skip_or_fail_in_ci("kms2pin._kernels is not built (no C compiler at install time)")
-    return kernels
+    return importlib.import_module("kms2pin._kernels")
 
 
-@pytest.fixture(params=["native", "numpy"])
-def backend(request, monkeypatch) -> str:
-    """Run a static-update test with the C kernels (kms2pin/_kernels.c) and with the NumPy
-    fallback; in CI the C kernels must have been built by the install."""
-    from kms2pin import virtual_work
+@pytest.fixture(params=["c", "numpy"])
+def backend(request) -> Iterator[str]:
+    """Run a test with the C kernels (kms2pin/_kernels.c) and with their NumPy twins
+    (:func:`kms2pin.native.use`); in CI the C kernels must have been built by the install."""
+    from kms2pin import native
 
-    if request.param == "native":
+    if request.param == "c":
         require_kernels()
-        monkeypatch.setattr(virtual_work, "NATIVE", True)
-    else:
-        monkeypatch.setattr(virtual_work, "NATIVE", False)
-    return request.param
+    with native.use(request.param):
+        yield request.param

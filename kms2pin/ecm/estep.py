@@ -17,10 +17,9 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from ..native import kernels as _kernels
-from . import mstep as _mstep
+from ..native import kernels
 from .camera import Camera
-from .mstep import BodyImage, BodyView, body_images, closest_approach, world_rays
+from .mstep import SLACK_PX, BodyImage, BodyView, body_box_arrays, body_images, world_rays
 from .projection import BBox
 
 __all__ = ["UnionEStep"]
@@ -33,9 +32,10 @@ class UnionEStep:
         max_pixels: pixels per body and camera above which a body's view is subsampled
             (every ``stride``-th row and column) for the M-step.
         outlier, outlier_px: the outlier class (0: off) and its least edge width (pixels).
-        fused: do a camera in one C call when it can (the same views as body by body).
+        fused: do a camera in one kernel call (``estep_camera``) when it can (the same
+            views as body by body).
 
-    :attr:`fused_cameras` counts the cameras the last call did in one C call.
+    :attr:`fused_cameras` counts the cameras the last call did in one kernel call.
     """
 
     def __init__(self, max_pixels: int, outlier: float = 0.0, outlier_px: float = 3.0, fused: bool = True):
@@ -54,15 +54,14 @@ class UnionEStep:
         ``inner`` (n, 3); ``masks`` bool or float64 fractions (binned), ``delta_px`` the
         edge width in pixels."""
         n = len(poses)
-        native = _mstep.NATIVE
-        As = (Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1) if native else None
+        As = (Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
         views: list[list[BodyView]] = [[] for _ in range(n)]
         self.fused_cameras = 0
         for c, (cam, mask) in enumerate(zip(cameras, masks)):
             log_free = self._zeroed(c, cam.shape)  # Σ_j log(1 - s_j)
-            if native and self.fused and self.outlier <= 0 and cam.dist is None:
+            if self.fused and self.outlier <= 0 and cam.dist is None:
                 fused = self._camera_fused(cam, mask, Rs, ts, As, inner, log_free, delta_px)
-                if fused is not None:  # _camera below in one C call
+                if fused is not None:  # _camera below in one kernel call
                     self.fused_cameras += 1
                     for i, v in enumerate(fused):
                         if v is not None:
@@ -76,9 +75,8 @@ class UnionEStep:
         return views
 
     def _camera(self, cam, mask, poses, Rs, ts, As, inner, log_free, delta_px) -> list[BodyView | None]:
-        """One camera's views, body by body (NumPy, or the per-body C kernels)."""
+        """One camera's views, body by body."""
         n = len(poses)
-        native = As is not None
         images: list = [None] * n
         log_free_o = np.zeros(cam.shape) if self.outlier > 0 else None
         widen = delta_px / max(delta_px, self.outlier_px)  # h at the outlier edge width
@@ -88,21 +86,12 @@ class UnionEStep:
         for i, img in enumerate(body_imgs):
             if img is None:
                 continue
-            if native:  # the lines below, per pixel in C (kms2pin/_kernels.c)
-                img.s = np.empty(len(img.dirs))  # softplus(h) = -log(1 - s)
-                b = img.box
-                _kernels.estep_body(
-                    img.dirs, As[i], es[i], 1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0,
-                    b.u1 - b.u0, img.s, log_free_o, widen,
-                )
-                images[i] = img
-                continue
-            a2, _ = closest_approach(img, poses[i].rotation, poses[i].translation, inner[i], False)
-            h = (1.0 - a2) / (2.0 * img.delta)
-            img.s = np.logaddexp(0.0, h)  # softplus(h) = -log(1 - s)
-            log_free[img.slices] -= img.s.reshape(img.shape)
-            if log_free_o is not None:
-                log_free_o[img.slices] -= np.logaddexp(0.0, widen * h).reshape(img.shape)
+            img.s = np.empty(len(img.dirs))  # softplus(h) = -log(1 - s)
+            b = img.box
+            kernels.estep_body(
+                img.dirs, As[i], es[i], 1.0 / (2.0 * img.delta), log_free, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0,
+                img.s, log_free_o, widen,
+            )
             images[i] = img
         weight = None
         if log_free_o is not None:
@@ -115,14 +104,9 @@ class UnionEStep:
         for i, img in enumerate(images):
             if img is None:
                 continue
-            if native:
-                b = img.box
-                o, y = np.empty(len(img.s)), np.empty(len(img.s))
-                _kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
-            else:
-                others = log_free[img.slices].ravel() + img.s
-                o = -np.expm1(np.minimum(others, 0.0))
-                y = mask[img.slices].ravel().astype(float)  # 0/1, or a binned fraction
+            b = img.box
+            o, y = np.empty(len(img.s)), np.empty(len(img.s))  # y: 0/1, or a binned fraction
+            kernels.estep_view(log_free, mask, b.v0, b.u0, b.v1 - b.v0, b.u1 - b.u0, img.s, o, y)
             wt = None if weight is None else weight[img.slices].ravel()
             out[i] = self._subsampled(img, y, o, wt)
         for img in body_imgs:  # zeroed again for the next E-step
@@ -131,12 +115,12 @@ class UnionEStep:
         return out
 
     def _camera_fused(self, cam: Camera, mask, Rs, ts, As, inner, log_free, delta_px: float) -> list | None:
-        """One camera's E-step in one C call (``kms2pin._kernels.estep_camera``): every
+        """One camera's E-step in one kernel call (``estep_camera``): every
         body's :class:`BodyView` (None: out of view), the same as the per-body kernels
         give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
         path (straddling the camera plane or degenerate)."""
         n = len(Rs)
-        status, boxes, delta = _mstep.body_box_arrays(cam, Rs, ts, inner, delta_px, _mstep.SLACK_PX)
+        status, boxes, delta = body_box_arrays(cam, Rs, ts, inner, delta_px, SLACK_PX)
         if (status == 1).any():
             return None
         seen = status == 2
@@ -147,7 +131,7 @@ class UnionEStep:
         N = int(offset[-1])
         dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
         inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
-        _kernels.estep_camera(
+        kernels.estep_camera(
             world_rays(cam), As.reshape(n, 9), cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask),
             log_free, dirs, sp, o, y,
         )

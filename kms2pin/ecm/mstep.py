@@ -58,17 +58,11 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from ..native import ENABLED as _NATIVE_ENABLED
-from ..native import kernels as _kernels
+from .._numpy_kernels import H_CUT, closest
+from ..native import kernels
 from .camera import Camera
 from .projection import BBox, body_bbox
 
-#: Whether the per-pixel arithmetic runs in the C kernels (:mod:`kms2pin.native`);
-#: the NumPy code below is the fallback and the definition.
-NATIVE = _NATIVE_ENABLED
-
-#: ``h`` beyond which the logistic edge counts as saturated (σ(-7) < 1e-3).
-H_CUT = 7.0
 #: pixels a body's box is grown by beyond its edge (h = -H_CUT)
 SLACK_PX = 2.0
 
@@ -83,10 +77,6 @@ def world_rays(camera: Camera) -> np.ndarray:
         r.flags.writeable = False
         _WORLD_RAYS[camera] = r
     return r
-
-
-def sigmoid(h: np.ndarray) -> np.ndarray:
-    return 0.5 * (1.0 + np.tanh(0.5 * h))
 
 
 @dataclass
@@ -193,71 +183,25 @@ def pose_arrays(poses: Sequence[pin.SE3]) -> tuple[np.ndarray, np.ndarray]:
 def body_box_arrays(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, delta_px: float, slack_px: float):
     """:func:`body_images`' per-body status (0: not in view, 1: per-body path, 2: box),
     boxes (n, 4: u0, v0, u1, v1) and edge widths of the bodies at rotations ``Rs`` and
-    centres ``ts``, vectorized over bodies (or in C)."""
+    centres ``ts`` (the ``body_boxes`` kernel, :mod:`kms2pin.native`)."""
     n = len(Rs)
-    Rwc, K = camera.world_R_camera, camera.K
     H, W = camera.shape
-    if NATIVE:  # the lines below in one C call (kms2pin/_kernels.c)
-        boxes, delta, status = np.zeros((n, 4)), np.empty(n), np.empty(n)
-        _kernels.body_boxes(Rs.reshape(n, 9), ts, inner, Rwc, camera.centre, K, float(delta_px), float(slack_px), W, H,
-                            boxes, delta, status)
-        return status, boxes, delta
-    mu = (ts - camera.centre) @ Rwc  # camera-frame centres
-    depth = mu[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        Ls = np.sort(inner, axis=1)
-        radius_px = np.sqrt(K[0, 0] * K[1, 1]) * np.sqrt(Ls[:, 0] * Ls[:, 1]) / depth
-        r = np.maximum(radius_px, 1e-6)
-        delta = np.minimum(np.maximum(delta_px / r, 1e-6), 0.08)
-        L = inner * (np.sqrt(1.0 + 2.0 * H_CUT * delta) + slack_px / r)[:, None]
-        R_cb = Rwc.T @ Rs
-        sigma = (R_cb * L[:, None, :] ** 2) @ R_cb.transpose(0, 2, 1)
-        c_body = -np.einsum("ni,nij->nj", mu, R_cb)  # camera centre in the body frames
-        inside = ((c_body / L) ** 2).sum(axis=1) <= 1.0
-        half = np.sqrt(sigma[:, 2, 2])
-        front = ~inside & (mu[:, 2] - half > 0)
-        D = K @ (sigma - mu[:, :, None] * mu[:, None, :]) @ K.T  # dual conics P Q* P^T
-        a = D[:, 2, 2]
-        lo, hi = [], []
-        for i in (0, 1):
-            b, c = D[:, i, 2], D[:, i, i]
-            rt = np.sqrt(np.maximum(b * b - a * c, 0.0))
-            k1, k2 = (b - rt) / a, (b + rt) / a
-            lo.append(np.minimum(k1, k2))
-            hi.append(np.maximum(k1, k2))
-    finite = np.isfinite(lo[0]) & np.isfinite(lo[1]) & np.isfinite(hi[0]) & np.isfinite(hi[1])
-    status = np.where(front & finite, 2.0, 1.0)
-    status[~(depth > 1e-9 * inner.max(axis=1))] = 0.0
-    boxes = np.zeros((n, 4))
-    ok = status == 2
-    boxes[ok, 0] = np.maximum(np.ceil(lo[0][ok]) - 1, 0)
-    boxes[ok, 1] = np.maximum(np.ceil(lo[1][ok]) - 1, 0)
-    boxes[ok, 2] = np.minimum(np.floor(hi[0][ok]) + 2, W)
-    boxes[ok, 3] = np.minimum(np.floor(hi[1][ok]) + 2, H)
-    status[ok & ((boxes[:, 2] <= boxes[:, 0]) | (boxes[:, 3] <= boxes[:, 1]))] = 0.0
+    boxes, delta, status = np.zeros((n, 4)), np.empty(n), np.empty(n)
+    kernels.body_boxes(Rs.reshape(n, 9), ts, inner, camera.world_R_camera, camera.centre, camera.K, float(delta_px),
+                       float(slack_px), W, H, boxes, delta, status)
     return status, boxes, delta
-
-
-def _closest(d: np.ndarray, A: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest approach ``q* = e + s* d`` of each ray ``d`` (N, 3) to an ellipsoid of
-    metric ``A`` seen from ``e`` (camera centre relative to the body centre), and ``A q*``."""
-    Ae, Ad = A @ e, d @ A
-    s = np.maximum(-(d @ Ae) / np.einsum("ij,ij->i", Ad, d), 0.0)
-    return e + s[:, None] * d, Ae + s[:, None] * Ad
 
 
 def closest_approach(img: BodyImage, R: np.ndarray, t: np.ndarray, inner: np.ndarray, jac: bool):
     """``a²`` per pixel and, if ``jac``, its derivative -2 [g, q*×g] (N, 6) (module docstring)."""
     A = (R / inner**2) @ R.T
     e = img.camera.centre - t
-    if NATIVE and not jac:
-        a2 = np.empty(len(img.dirs))
-        _kernels.ellipsoid_a2(img.dirs, A, e, a2)
-        return a2, None
-    qs, g = _closest(img.dirs, A, e)
-    a2 = np.einsum("ij,ij->i", qs, g)
     if not jac:
+        a2 = np.empty(len(img.dirs))
+        kernels.ellipsoid_a2(img.dirs, A, e, a2)
         return a2, None
+    qs, g = closest(img.dirs, A, e)
+    a2 = np.einsum("ij,ij->i", qs, g)
     D = np.empty((len(qs), 6))
     D[:, :3] = g
     D[:, 3:] = np.cross(qs, g)
@@ -289,57 +233,22 @@ class BodyFit:
     cost: float
 
 
-def _moved(pose: pin.SE3, delta: np.ndarray) -> pin.SE3:
-    """Pose moved by a world translation delta[:3] and a world rotation vector delta[3:]."""
-    return pin.SE3(pin.exp3(delta[3:]) @ pose.rotation, pose.translation + delta[:3])
-
-
 def body_cost(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: bool):
-    """Cost sum wt r^2, gradient, Gauss-Newton matrix (6x6) and evidence of one body."""
+    """Cost Σ wt r², gradient, Gauss-Newton matrix (6x6) and evidence of one body
+    (the evidence and, without ``jac``, the gradient and matrix are 0)."""
     cost = 0.0
     H = np.zeros((6, 6))
     grad = np.zeros(6)
     evidence = 0.0
     R, t = pose.rotation, pose.translation
-    if NATIVE:  # the loop below, per pixel in C (kms2pin/_kernels.c)
-        A = (R / inner**2) @ R.T
-        for v in views:
-            c, e = _kernels.silhouette_fit(
-                v.image.dirs, A, v.image.camera.centre - t, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight, jac, H,
-                grad,
-            )
-            cost += c
-            evidence += e
-        return cost, grad, H, evidence
+    A = (R / inner**2) @ R.T
     for v in views:
-        a2, D = closest_approach(v.image, R, t, inner, jac)
-        c, e = _view_terms(v, a2, D, H, grad)
+        c, e = kernels.silhouette_fit(
+            v.image.dirs, A, v.image.camera.centre - t, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight, jac, H, grad,
+        )
         cost += c
         evidence += e
     return cost, grad, H, evidence
-
-
-def _view_terms(v: BodyView, a2: np.ndarray, D: np.ndarray | None, H: np.ndarray, grad: np.ndarray):
-    """One view's cost Σ wt r² and evidence; with ``D = d(a²)/dp`` (N, k) it also adds
-    its Gauss-Newton matrix and gradient in ``p`` to ``H`` and ``grad``."""
-    inv = 1.0 / (2.0 * v.image.delta)
-    h = (1.0 - a2) * inv
-    s = sigmoid(h)
-    free = 1.0 - v.o
-    r = v.y - v.o - free * s
-    wt = 1.0 if v.weight is None else v.weight  # inlier responsibility
-    cost = float((wt * r) @ r)
-    if D is None:
-        return cost, 0.0
-    evidence = float((wt * free) @ (s * v.y))
-    # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
-    w = free * s * (1.0 - s) * inv
-    act = (np.abs(h) < H_CUT) & (w > 0)  # off the saturated edge: no gradient
-    J = D[act] * w[act, None]  # = d r / d p
-    Jw = J if v.weight is None else J * v.weight[act, None]
-    H += Jw.T @ J
-    grad += Jw.T @ r[act]
-    return cost, evidence
 
 
 def fit_body(
@@ -361,52 +270,13 @@ def fit_body(
     inner = np.asarray(inner, dtype=float)
     if not views:
         return BodyFit(pose0, np.zeros((6, 6)), 0.0, 0.0)
-    if NATIVE:  # the loop below in one C call (kms2pin/_kernels.c)
-        R, t, H = np.empty((3, 3)), np.empty(3), np.empty((6, 6))
-        evidence, cost = _kernels.fit_body(
-            [(v.image.dirs, v.image.camera.centre, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight) for v in views],
-            pose0.rotation, pose0.translation, inner, int(iterations), float(damping),
-            -1.0 if max_step is None else float(max_step), R, t, H,
-        )
-        return BodyFit(pin.SE3(R, t), H, evidence, cost)
-    size = float(np.mean(inner))
-    S = np.r_[np.full(3, size), np.ones(3)]
-    pose = pose0
-    offset = np.zeros(6)  # accumulated move from pose0 (first order in rotation)
-    cost, grad, H, evidence = body_cost(views, pose, inner, True)
-    if not np.any(H):
-        return BodyFit(pose0, H, evidence, cost)
-    Hn = S[:, None] * H * S[None, :]
-    prior = damping * max(float(np.max(np.diag(Hn))), 1e-12)
-    lam = 1e-3
-    for _ in range(iterations):
-        Hn = S[:, None] * H * S[None, :]
-        gn = S * grad + prior * offset / S
-        improved = False
-        for _ in range(6):
-            A = Hn + (prior + lam * float(np.max(np.diag(Hn)))) * np.eye(6)
-            try:
-                stepn = -np.linalg.solve(A, gn)
-            except np.linalg.LinAlgError:
-                break
-            if max_step is not None:
-                big = max(np.linalg.norm(stepn[:3]), np.linalg.norm(stepn[3:]))
-                stepn *= min(1.0, max_step / max(big, 1e-300))
-            step = stepn * S
-            cand = _moved(pose, step)
-            c2, g2, H2, e2 = body_cost(views, cand, inner, True)
-            new_off = offset + step
-            p_old = 0.5 * prior * float(np.sum((offset / S) ** 2))
-            p_new = 0.5 * prior * float(np.sum((new_off / S) ** 2))
-            if 0.5 * c2 + p_new <= 0.5 * cost + p_old:
-                pose, offset, cost, grad, H, evidence = cand, new_off, c2, g2, H2, e2
-                lam = max(lam * 0.3, 1e-6)
-                improved = True
-                break
-            lam *= 10.0
-        if not improved:
-            break
-    return BodyFit(pose, H, evidence, cost)
+    R, t, H = np.empty((3, 3)), np.empty(3), np.empty((6, 6))
+    evidence, cost = kernels.fit_body(
+        [(v.image.dirs, v.image.camera.centre, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight) for v in views],
+        pose0.rotation, pose0.translation, inner, int(iterations), float(damping),
+        -1.0 if max_step is None else float(max_step), R, t, H,
+    )
+    return BodyFit(pin.SE3(R, t), H, evidence, cost)
 
 
 def fit_bodies(
@@ -431,18 +301,11 @@ def body_scale_cost(views: Sequence[BodyView], R: np.ndarray, t: np.ndarray, inn
     log semi-axes of its inner ellipsoid, the pose held (:func:`fit_body_scale`)."""
     cost, grad, H = 0.0, np.zeros(3), np.zeros((3, 3))
     A = (R / inner**2) @ R.T
-    if NATIVE:  # the loop below, per pixel in C (kms2pin/_kernels.c)
-        for v in views:
-            cost += _kernels.scale_fit(
-                v.image.dirs, A, v.image.camera.centre - t, R, inner, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight,
-                H, grad,
-            )
-        return cost, grad, H
     for v in views:
-        qs, _ = _closest(v.image.dirs, A, v.image.camera.centre - t)
-        xb = (qs @ R) / inner  # closest points in the body frame, in semi-axes
-        # a² = Σ_k (r_k·q*)² / L_k², so d(a²)/d log L_k = -2 x_k² (envelope theorem in s*)
-        cost += _view_terms(v, np.einsum("ij,ij->i", xb, xb), -2.0 * xb**2, H, grad)[0]
+        cost += kernels.scale_fit(
+            v.image.dirs, A, v.image.camera.centre - t, R, inner, 1.0 / (2.0 * v.image.delta), v.y, v.o, v.weight,
+            H, grad,
+        )
     return cost, grad, H
 
 

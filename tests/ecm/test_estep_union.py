@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import require_kernels
 
 from kms2pin.ecm.estep import UnionEStep
 from kms2pin.ecm.loop import FrameECM
@@ -96,11 +95,10 @@ def test_wide_edge_iterations_run_on_binned_masks_and_the_pose_is_recovered(monk
             Tracker(robot, cams, coarse_delta_px=bad)
 
 
-def test_the_one_call_e_step_gives_the_per_body_kernels_views():
-    """UnionEStep runs a camera in one C call (estep_camera) unless a body needs the
+def test_the_one_call_e_step_gives_the_per_body_kernels_views(backend):
+    """UnionEStep runs a camera in one kernel call (estep_camera) unless a body needs the
     per-body path; both give the same views to the last bit, and leave the scratch
     image zeroed."""
-    require_kernels()
     robot = _robot("fullbody")
     cams = _cams(robot)
     rng = np.random.default_rng(5)

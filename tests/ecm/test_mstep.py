@@ -7,12 +7,18 @@ import pinocchio as pin
 import pytest
 from conftest import require_kernels
 
+from kms2pin import _numpy_kernels, native
 from kms2pin.ecm import mstep
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.mstep import BodyView, _moved, body_image, body_images, closest_approach, fit_body
+from kms2pin.ecm.mstep import BodyView, body_image, body_images, closest_approach, fit_body
 from kms2pin.ecm.raycast import render_mask
 
 INNER = np.array([0.3, 0.8, 0.4])
+
+
+def _moved(pose: pin.SE3, delta: np.ndarray) -> pin.SE3:
+    """Pose moved by a world translation delta[:3] and a world rotation vector delta[3:]."""
+    return pin.SE3(pin.exp3(delta[3:]) @ pose.rotation, pose.translation + delta[:3])
 
 
 def _cams():
@@ -97,16 +103,11 @@ def test_no_views_keeps_the_pose():
     pose = _pose(rng)
     fit = fit_body([], pose, INNER)
     assert fit.pose == pose and fit.evidence == 0.0
-    assert mstep.sigmoid(np.array([0.0]))[0] == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["native", "numpy"])
-def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monkeypatch):
+def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(backend):
     """grad = J^T r with J = dr/d(delta t, omega), so d(cost)/d delta = 2 grad (cost = sum r^2);
     checked by central differences of the cost, for the C kernel and the NumPy code."""
-    if native:
-        require_kernels()
-    monkeypatch.setattr(mstep, "NATIVE", native)
     rng = np.random.default_rng(5)
     truth = _pose(rng)
     pose = _moved(truth, np.r_[rng.normal(0, 0.03, 3), rng.normal(0, 0.05, 3)])
@@ -121,21 +122,6 @@ def test_fit_gradient_is_half_the_cost_derivative_in_both_backends(native, monke
                  - mstep.body_cost(views, _moved(pose, -d), INNER, False)[0]) / (2 * h)
     np.testing.assert_allclose(2 * grad, fd, atol=2e-3 * np.abs(fd).max())
     assert np.all(np.linalg.eigvalsh(H) >= -1e-9)  # a Gauss-Newton matrix
-
-
-def test_native_and_numpy_fits_agree(monkeypatch):
-    require_kernels()
-    rng = np.random.default_rng(6)
-    truth = _pose(rng)
-    pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
-    views = _views(_cams(), pose, truth)
-    views = [BodyView(v.image, v.y, rng.uniform(0, 0.5, v.y.shape), rng.uniform(0.5, 1, v.y.shape)) for v in views]
-    out = {}
-    for native in (True, False):
-        monkeypatch.setattr(mstep, "NATIVE", native)
-        out[native] = mstep.body_cost(views, pose, INNER, True)
-    for a, b in zip(out[True], out[False]):
-        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())
 
 
 def _size_views(rng):
@@ -153,68 +139,35 @@ def _size_views(rng):
 
 def test_size_gradient_matches_finite_differences(monkeypatch):
     """The size fit's gradient in the log semi-axes is half the derivative of its cost,
-    checked by central differences (with every pixel's term: no saturated-edge cut)."""
-    monkeypatch.setattr(mstep, "NATIVE", False)
-    monkeypatch.setattr(mstep, "H_CUT", 1e9)
+    checked by central differences (with every pixel's term: no saturated-edge cut, so
+    in NumPy)."""
+    monkeypatch.setattr(_numpy_kernels, "H_CUT", 1e9)
     truth, views = _size_views(np.random.default_rng(11))
     R, t = truth.rotation, truth.translation
-    cost, grad, H = mstep.body_scale_cost(views, R, t, INNER)
     h = 1e-6
-    fd = np.array([
-        (mstep.body_scale_cost(views, R, t, INNER * np.exp(h * e))[0]
-         - mstep.body_scale_cost(views, R, t, INNER * np.exp(-h * e))[0]) / (2 * h)
-        for e in np.eye(3)
-    ])
+    with native.use("numpy"):
+        cost, grad, H = mstep.body_scale_cost(views, R, t, INNER)
+        fd = np.array([
+            (mstep.body_scale_cost(views, R, t, INNER * np.exp(h * e))[0]
+             - mstep.body_scale_cost(views, R, t, INNER * np.exp(-h * e))[0]) / (2 * h)
+            for e in np.eye(3)
+        ])
     np.testing.assert_allclose(2 * grad, fd, rtol=1e-6)
     assert np.all(np.linalg.eigvalsh(H) >= -1e-9)  # a Gauss-Newton matrix
 
 
-def test_native_and_numpy_size_fits_agree(monkeypatch):
-    """The C size kernel (kms2pin/_kernels.c) gives fit_body_scale's sums and result."""
-    require_kernels()
+def test_size_fit_moves_towards_the_drawn_sizes(backend):
     truth, views = _size_views(np.random.default_rng(12))
-    out = {}
-    for native in (True, False):
-        monkeypatch.setattr(mstep, "NATIVE", native)
-        out[native] = (
-            mstep.body_scale_cost(views, truth.rotation, truth.translation, INNER),
-            mstep.fit_body_scale(views, truth, INNER, iterations=4),
-        )
-    for a, b in zip(out[True][0] + out[True][1], out[False][0] + out[False][1]):
-        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-11 * np.abs(b).max())
-    f = out[True][1][0]
+    f, H = mstep.fit_body_scale(views, truth, INNER, iterations=4)
     assert f[0] < 0.97 and f[1] > 1.02  # towards the drawn sizes (0.94, 1.08)
+    assert np.all(np.linalg.eigvalsh(H) >= -1e-9)
 
 
-@pytest.mark.parametrize("max_step", [None, 0.05])
-def test_native_and_numpy_body_fits_agree(monkeypatch, max_step):
-    """The C fit (kms2pin/_kernels.c) runs the same damped Gauss-Newton loop as fit_body."""
-    require_kernels()
-    rng = np.random.default_rng(9)
-    truth = _pose(rng)
-    pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
-    views = _views(_cams(), pose, truth, delta=1.0)
-    fits = {}
-    for native in (True, False):
-        monkeypatch.setattr(mstep, "NATIVE", native)
-        fits[native] = fit_body(views, pose, INNER, iterations=4, damping=1e-2, max_step=max_step)
-    a, b = fits[True], fits[False]
-    np.testing.assert_allclose(a.pose.homogeneous, b.pose.homogeneous, atol=1e-9)
-    np.testing.assert_allclose(a.hessian, b.hessian, rtol=1e-8, atol=1e-10 * np.abs(b.hessian).max())
-    assert a.cost == pytest.approx(b.cost, rel=1e-9) and a.evidence == pytest.approx(b.evidence, rel=1e-9)
-    assert np.linalg.norm(a.pose.translation - pose.translation) > 1e-4  # it moved
-
-
-@pytest.mark.parametrize("native", [True, False], ids=["native", "numpy"])
-def test_body_images_match_body_image_one_by_one(native, monkeypatch):
-    """The vectorized boxes (NumPy, or the C kernel) equal body_image's, also for bodies
+def test_body_images_match_body_image_one_by_one(backend):
+    """The vectorized boxes (the body_boxes kernel) equal body_image's, also for bodies
     straddling the camera plane or out of view, and under lens distortion (which takes
     the per-body path)."""
     from pathlib import Path
-
-    if native:
-        require_kernels()
-    monkeypatch.setattr(mstep, "NATIVE", native)
 
     from kms2pin.robot import load
 
@@ -244,41 +197,6 @@ def test_body_images_match_body_image_one_by_one(native, monkeypatch):
                         assert a.delta == pytest.approx(b.delta, rel=1e-12)
                         np.testing.assert_array_equal(a.dirs, b.dirs)
     assert kinds == {"none", "full", "box"}
-
-
-def test_vectorized_and_scalar_c_loops_agree_with_numpy_far_from_the_outline(monkeypatch):
-    """The C kernel vectorizes its loop over contiguous arrays (with its own exp, clamped
-    at e^-40) and keeps a scalar libm loop for strided ones; both must give NumPy's sums,
-    also on pixels far outside the body (h << -40) and with weights."""
-    require_kernels()
-    rng = np.random.default_rng(11)
-    truth = _pose(rng)
-    pose = _moved(truth, np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3)])
-    cam = Camera.default()
-    img = body_image(cam, pose, INNER, 0.5, slack_px=60.0)  # a wide margin of far pixels
-    y = render_mask(cam, [(truth, INNER)])[img.slices].ravel().astype(float)
-    a2, _ = closest_approach(img, pose.rotation, pose.translation, INNER, False)
-    assert ((1.0 - a2) / (2.0 * img.delta)).min() < -200.0
-    o, w = rng.uniform(0, 0.5, y.shape), rng.uniform(0.5, 1, y.shape)
-
-    def strided(a):
-        big = np.zeros((2 * len(a),) + a.shape[1:])
-        big[::2] = a
-        return big[::2]
-
-    img_s = mstep.BodyImage(img.camera, img.box, img.stride, strided(img.dirs), img.delta)
-    assert not img_s.dirs.flags.c_contiguous
-    out = {}
-    for label, view, native in (
-        ("vector", BodyView(img, y, o, w), True),
-        ("scalar", BodyView(img_s, strided(y), strided(o), strided(w)), True),
-        ("numpy", BodyView(img, y, o, w), False),
-    ):
-        monkeypatch.setattr(mstep, "NATIVE", native)
-        out[label] = mstep.body_cost([view], pose, INNER, True)
-    for label in ("vector", "scalar"):
-        for a, b in zip(out[label], out["numpy"]):
-            np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(b).max())
 
 
 def test_box_kernel_rejects_malformed_arrays_instead_of_crashing():

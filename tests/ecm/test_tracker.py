@@ -154,10 +154,10 @@ def test_noisy_mismatched_walk_does_not_diverge():
 
 
 @pytest.mark.parametrize("outlier, coarse", [(0.0, None), (0.01, None), (0.0, 1.4)])
-def test_native_and_numpy_trackers_agree(monkeypatch, outlier, coarse):
-    """The C kernels (E-step, M-step) and the NumPy code give the same track, on the
-    masks and on their 2x2 binned fractions (coarse_delta_px)."""
-    from kms2pin.ecm import mstep
+def test_native_and_numpy_trackers_agree(outlier, coarse):
+    """The C kernels (E-step, M-step, static update) and their NumPy twins give the same
+    track, on the masks and on their 2x2 binned fractions (coarse_delta_px)."""
+    from kms2pin import native
 
     require_kernels()
     robot = _robot("lowerbody")
@@ -166,13 +166,13 @@ def test_native_and_numpy_trackers_agree(monkeypatch, outlier, coarse):
     cams = _cams(robot)
     q0 = _perturbed(robot, qt, rng)
     out = {}
-    for native in (True, False):
-        monkeypatch.setattr(mstep, "NATIVE", native)
-        tr = Tracker(robot, cams, q0=q0, outlier=outlier, calibrate_sizes=False, coarse_delta_px=coarse)
-        out[native] = tr.step(render(robot, qt, cams))
-    np.testing.assert_allclose(out[True].q, out[False].q, atol=1e-9)
-    assert out[True].iterations == out[False].iterations
-    assert centre_error(robot, out[True].q, qt) < 0.5
+    for backend in native.BACKENDS:
+        with native.use(backend):
+            tr = Tracker(robot, cams, q0=q0, outlier=outlier, calibrate_sizes=False, coarse_delta_px=coarse)
+            out[backend] = tr.step(render(robot, qt, cams))
+    np.testing.assert_allclose(out["c"].q, out["numpy"].q, atol=1e-9)
+    assert out["c"].iterations == out["numpy"].iterations
+    assert centre_error(robot, out["c"].q, qt) < 0.5
 
 
 def test_max_pixels_subsamples_the_m_step_and_still_recovers(monkeypatch):

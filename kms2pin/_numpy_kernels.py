@@ -1,0 +1,415 @@
+"""NumPy twins of the C kernels (``kms2pin/_kernels.c``): one function per C function,
+with its signature and semantics (outputs filled in place, the same return values).
+
+:mod:`kms2pin.native` chooses between the two.  The C file documents each kernel; in
+brief, the static update's (thesis §2.3) are :func:`linearize`, :func:`frame_coordinates`,
+:func:`pose_springs` and :func:`solve_shifted`, and the tracker's (thesis §2.1.2, the
+model in :mod:`kms2pin.ecm.mstep`'s docstring) are the closest approach of pixel rays
+to an ellipsoid, the silhouette fit's sums, the E-step's union and the body boxes.
+Unlike the C functions these do not check their arguments' types and shapes.
+
+Layouts as in the C file: body coordinates and targets (n, 7) ``[px, py, pz, x, y, z, w]``
+(Pinocchio's XYZQUAT), ``J`` Pinocchio's ``data.J`` (6, nv, world frame), pixel rays
+``dirs`` (N, 3) world directions at unit camera depth, ``A = R diag(L⁻²) Rᵀ`` an
+ellipsoid's metric and ``e`` the camera centre relative to the body centre (world).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+from scipy.linalg import lapack
+
+__all__ = [
+    "body_boxes",
+    "ellipsoid_a2",
+    "estep_body",
+    "estep_camera",
+    "estep_view",
+    "fit_body",
+    "frame_coordinates",
+    "linearize",
+    "pose_springs",
+    "scale_fit",
+    "silhouette_fit",
+    "solve_shifted",
+]
+
+#: ``|h|`` beyond which the logistic edge counts as saturated (σ(-7) < 1e-3); the C file's H_CUT.
+H_CUT = 7.0
+
+# ------------------------------------------------------------------ static update
+
+_EPS = np.zeros((3, 9))  # v @ _EPS is [v]x flattened (eq. 2.3)
+for _i, _j, _k, _sgn in ((0, 1, 2, -1), (0, 2, 1, 1), (1, 2, 0, -1), (1, 0, 2, 1), (2, 0, 1, -1), (2, 1, 0, 1)):
+    _EPS[_k, 3 * _i + _j] = _sgn
+
+# E(theta) = [-v^T; theta0 I - [v]x] (theta = (theta0, v)) is linear in theta: E = theta @ _EBASIS
+# reshaped (4, 3); d theta/dt = 1/2 E(theta) omega for a world-frame omega
+_EBASIS = np.zeros((4, 12))
+for _row, _entries in enumerate(
+    (((1, -1), (2, -1), (3, -1)), ((0, 1), (3, 1), (2, -1)), ((3, -1), (0, 1), (1, 1)), ((2, 1), (1, -1), (0, 1)))
+):
+    for _col, (_comp, _sgn) in enumerate(_entries):
+        _EBASIS[_comp, 3 * _row + _col] = _sgn
+# E for (x, y, z, w): the same rows and input components, reordered
+_EBASIS_XYZW = _EBASIS.reshape(4, 4, 3)[[1, 2, 3, 0]][:, [1, 2, 3, 0]].reshape(4, 12)
+_DIAG = np.arange(3)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (n, 3, 3) of vectors (n, 3) (eq. 2.3)."""
+    return (v @ _EPS).reshape(-1, 3, 3)
+
+
+def linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> tuple[float, float, float]:
+    """Spring energy, gradient ``grad = Bᵀ rho = -Bᵀ Q`` (eq. 2.28, rho = K diff = -F of
+    eq. 2.33) and Newton matrix ``H = Bᵀ K B`` (+ the second-order term if ``hessian``)
+    of the diagonal springs; ``diff = X - T`` with each target's Euler parameters on the
+    primary's side (§2.2.1).  ``S`` (n, nv) is 1 where column a moves body i,
+    ``same_joint`` (nv, nv) 1 where two columns belong to one joint.  Returns the energy,
+    ``|grad|²`` and the largest diagonal entry of ``H``."""
+    n, nv = len(X), J.shape[1]
+    d = X - T
+    flip = np.einsum("ij,ij->i", T[:, 3:], X[:, 3:]) < 0
+    if flip.any():
+        d[flip, 3:] = X[flip, 3:] + T[flip, 3:]
+    diff[:] = d
+    rho = K * d  # -F_i (eq. 2.33)
+    energy = 0.5 * float(rho.ravel() @ d.ravel())
+    p, theta = X[:, :3], X[:, 3:]
+    S3 = S[:, None, :]
+    Jang = J[3:][None] * S3  # (n, 3, nv)
+    Jlin = (J[:3][None] - _skew(p) @ J[3:][None]) * S3  # v(p) = v0 + omega x p
+    E = (theta @ _EBASIS_XYZW).reshape(n, 4, 3)
+    B = np.concatenate([Jlin, 0.5 * (E @ Jang)], axis=1).reshape(7 * n, nv)  # d q_max / d q
+    grad[:] = B.T @ rho.ravel()
+    k0 = K.flat[0] if K.size else 0.0
+    if k0 > 0 and (K == k0).all():  # the usual case: one stiffness for every coordinate
+        Hm = k0 * (B.T @ B)
+    else:
+        Bk = B * np.sqrt(K).reshape(-1, 1)
+        Hm = Bk.T @ Bk
+    if hessian:
+        Hm += _second_order(rho, theta, E, Jlin, Jang, same_joint)
+    H[:] = Hm
+    return energy, float(grad @ grad), float(H.diagonal().max())
+
+
+def _second_order(rho, theta, E, Jlin, Jang, same_joint) -> np.ndarray:
+    """sum_i rho_i . d^2 q_max,i / dq_a dq_b (the Newton term Gauss-Newton drops).
+
+    For a <= b (column a an ancestor of b): positions rho . (omega_a x J_b);
+    Euler parameters 1/4 [g . (omega_a x omega_b) - (rho_theta . theta)(omega_a . omega_b)]
+    with g = E(theta)^T rho_theta; mirrored below the diagonal, the block of one joint
+    symmetrized.  As bilinear forms of the angular columns:
+    omega_a^T (-[rho_mu]x J_b + 1/4 (-[g]x - c I) omega_b).
+    """
+    n, nv = Jang.shape[0], Jang.shape[2]
+    g = (rho[:, None, 3:] @ E)[:, 0]  # E^T rho_theta
+    Z = _skew(-g)
+    Z[:, _DIAG, _DIAG] -= np.einsum("ij,ij->i", rho[:, 3:], theta)[:, None]
+    Y = _skew(-rho[:, :3]) @ Jlin + 0.25 * (Z @ Jang)
+    A = Jang.reshape(3 * n, nv).T @ Y.reshape(3 * n, nv)
+    A = np.where(same_joint != 0, 0.5 * (A + A.T), A)
+    upper, strict_upper = _triangles(nv)
+    return A * upper + (A * strict_upper).T
+
+
+@functools.lru_cache(maxsize=32)
+def _triangles(nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (nv, nv) masks of the upper triangle with and without the diagonal."""
+    return np.triu(np.ones((nv, nv))), np.triu(np.ones((nv, nv)), 1)
+
+
+def frame_coordinates(rows: Sequence[np.ndarray], joints, offsets, out) -> None:
+    """Body frames from joint placements: ``out[i] = rows[joints[i]] * offsets[i]``, each
+    an XYZQUAT 7-vector (``rows[j]`` joint j's world placement, ``offsets[i]`` body i's
+    fixed placement in its joint's frame)."""
+    a = np.asarray(rows)[np.asarray(joints).astype(int)]
+    av, aw, c = a[:, 3:6], a[:, 6:], offsets[:, :3]
+    ov, ow = offsets[:, 3:6], offsets[:, 6:]
+    V = _skew(av)  # v x (.)
+    vxc = (V @ c[:, :, None])[:, :, 0]  # position: t_a + R(a) c = t_a + c + 2 w (v x c) + 2 v x (v x c)
+    out[:, :3] = a[:, :3] + c + 2.0 * (aw * vxc + (V @ vxc[:, :, None])[:, :, 0])
+    out[:, 3:6] = aw * ov + ow * av + (V @ ov[:, :, None])[:, :, 0]  # orientation: a (x) o
+    out[:, 6] = aw[:, 0] * ow[:, 0] - np.einsum("ij,ij->i", av, ov)
+
+
+def pose_springs(J, X, T, K, S, A, g) -> float:
+    """The static update with a full 6x6 spring per body (:func:`kms2pin.virtual_work.pose_spring_update`):
+    body i's pose error ``e_i = (t_i - t'_i, log(R_i R'_iᵀ))`` (world axes) and its
+    LOCAL_WORLD_ALIGNED Jacobian ``J_i`` at the body centre; ``K`` (n, 36) row-major
+    6x6 stiffness.  Sets ``A = Σ J_iᵀ K_i J_i`` and ``g = Σ J_iᵀ K_i e_i``; returns the
+    energy ``Σ ½ e_iᵀ K_i e_i``."""
+    n, nv = len(X), J.shape[1]
+    K = K.reshape(n, 6, 6)
+    e = np.empty((n, 6))
+    e[:, :3] = X[:, :3] - T[:, :3]
+    e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
+    Ji = np.empty((n, 6, nv))
+    Ji[:, 3:] = J[3:][None] * S[:, None, :]
+    Ji[:, :3] = (J[:3][None] + np.cross(J[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * S[:, None, :]
+    KJ = (K @ Ji).reshape(6 * n, nv)
+    A[:] = Ji.reshape(6 * n, nv).T @ KJ
+    g[:] = KJ.T @ e.ravel()
+    return 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
+
+
+def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ⊗ conj(b) for (n, 4) quaternions in (x, y, z, w) order."""
+    av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
+    out = np.empty_like(a)
+    out[:, 3:] = aw * bw + np.sum(av * bv, axis=1, keepdims=True)
+    out[:, :3] = bw * av - aw * bv - np.cross(av, bv)
+    return out
+
+
+def _log_quat(qr: np.ndarray) -> np.ndarray:
+    """Rotation vectors (n, 3) of unit quaternions (n, 4), (x, y, z, w): angle in [0, pi]."""
+    v, w = qr[:, :3], qr[:, 3]
+    sign = np.where(w < 0, -1.0, 1.0)
+    v, w = v * sign[:, None], w * sign
+    nv = np.linalg.norm(v, axis=1)
+    small = nv < 1e-12
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(nv, w) / np.where(small, 1.0, nv))
+    return v * scale[:, None]
+
+
+def solve_shifted(H, grad, shift, step) -> bool:
+    """Solve ``(H + shift I) step = -grad`` by Cholesky (H's lower triangle); False,
+    ``step`` untouched, if the matrix is not positive definite."""
+    n = len(grad)
+    if n == 0:
+        return True
+    M = np.array(H, dtype=float)
+    M[np.diag_indices(n)] += shift
+    L, info = lapack.dpotrf(M, lower=1)
+    if info != 0 or not np.isfinite(L).all():
+        return False
+    step[:] = lapack.dpotrs(L, -np.asarray(grad, dtype=float), lower=1)[0]
+    return True
+
+
+# ------------------------------------------------------------------ ECM
+
+
+def sigmoid(h: np.ndarray) -> np.ndarray:
+    """The logistic function σ(h)."""
+    return 0.5 * (1.0 + np.tanh(0.5 * h))
+
+
+def closest(d: np.ndarray, A: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest approach ``q* = e + s* d`` of each ray ``d`` (N, 3) to an ellipsoid of
+    metric ``A`` seen from ``e`` (camera centre relative to the body centre), and ``A q*``."""
+    Ae, Ad = A @ e, d @ A
+    nn = np.einsum("ij,ij->i", Ad, d)
+    s = np.maximum(-(d @ Ae) / np.where(nn > 0, nn, np.inf), 0.0)
+    return e + s[:, None] * d, Ae + s[:, None] * Ad
+
+
+def ellipsoid_a2(dirs, A, e, out) -> None:
+    """``out`` (N,): ``a² = q*ᵀ A q*`` of every ray, its closest approach to the ellipsoid
+    in the ellipsoid metric."""
+    qs, g = closest(dirs, A, e)
+    out[:] = np.einsum("ij,ij->i", qs, g)
+
+
+def _edge_sums(a2, D, inv, y, o, weight, H, grad) -> tuple[float, float]:
+    """One view's cost ``Σ wt r²`` with ``r = y - o - (1 - o) s``, ``s = σ((1 - a²) inv)``,
+    and, with ``D = d(a²)/dp`` (N, k), its evidence ``Σ wt (1 - o) s y``; then it also
+    adds ``Jᵀ wt J`` to ``H`` and ``Jᵀ wt r`` to ``grad`` over the pixels on the edge
+    (``|h| < H_CUT``), ``J = dr/dp``.  Without ``D`` the evidence is 0."""
+    h = (1.0 - a2) * inv
+    s = sigmoid(h)
+    free = 1.0 - o
+    r = y - o - free * s
+    wt = 1.0 if weight is None else weight  # inlier responsibility
+    cost = float((wt * r) @ r)
+    if D is None:
+        return cost, 0.0
+    evidence = float((wt * free) @ (s * y))
+    # dr = -free * s(1-s) * dh,  dh = -d(a²) * inv
+    w = free * s * (1.0 - s) * inv
+    act = (np.abs(h) < H_CUT) & (w > 0)  # off the saturated edge: no gradient
+    Jr = D[act] * w[act, None]  # = d r / d p
+    Jw = Jr if weight is None else Jr * weight[act, None]
+    H += Jw.T @ Jr
+    grad += Jw.T @ r[act]
+    return cost, evidence
+
+
+def silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> tuple[float, float]:
+    """One body in one view (:mod:`kms2pin.ecm.mstep`): cost and evidence of
+    :func:`_edge_sums`; with ``jac`` its Gauss-Newton sums in ``p = (δt, ω)``, a world
+    translation and rotation vector of the body, are added to ``H`` (6x6) and ``grad`` (6)."""
+    qs, g = closest(dirs, A, e)
+    a2 = np.einsum("ij,ij->i", qs, g)
+    D = None
+    if jac:  # d(a²) = -2 (gᵀ δt + ωᵀ (q* × g)) (envelope theorem)
+        D = np.empty((len(qs), 6))
+        D[:, :3] = g
+        D[:, 3:] = np.cross(qs, g)
+        D *= -2.0
+    return _edge_sums(a2, D, inv, y, o, weight, H, grad)
+
+
+def scale_fit(dirs, A, e, R, inner, inv, y, o, weight, H, grad) -> float:
+    """:func:`silhouette_fit`'s cost in the log semi-axes of the body's inner ellipsoid,
+    its pose (rotation ``R``) held; adds the sums to ``H`` (3x3) and ``grad`` (3)."""
+    qs, _ = closest(dirs, A, e)
+    xb = (qs @ R) / inner  # closest points in the body frame, in semi-axes
+    # a² = Σ_k (r_k·q*)² / L_k², so d(a²)/d log L_k = -2 x_k² (envelope theorem in s*)
+    return _edge_sums(np.einsum("ij,ij->i", xb, xb), -2.0 * xb**2, inv, y, o, weight, H, grad)[0]
+
+
+def estep_body(dirs, A, e, inv, log_free, v0, u0, rows, cols, sp, log_free_o, widen) -> None:
+    """One body's share of the union on its box (rows, cols at v0, u0): ``h = (1 - a²) inv``,
+    ``sp = softplus(h) = -log(1 - s)``, ``log_free[box] -= sp``; with ``log_free_o`` also
+    ``log_free_o[box] -= softplus(widen h)``."""
+    a2 = np.empty(len(dirs))
+    ellipsoid_a2(dirs, A, e, a2)
+    h = (1.0 - a2) * inv
+    sp[:] = np.logaddexp(0.0, h)
+    box = slice(v0, v0 + rows), slice(u0, u0 + cols)
+    log_free[box] -= sp.reshape(rows, cols)
+    if log_free_o is not None:
+        log_free_o[box] -= np.logaddexp(0.0, widen * h).reshape(rows, cols)
+
+
+def estep_view(log_free, mask, v0, u0, rows, cols, sp, o, y) -> None:
+    """A body's view of the union on its box: ``o = 1 - exp(min(log_free + sp, 0))``, what
+    the other bodies explain, and ``y`` the mask there (bool/uint8: 0/1; float64: the value)."""
+    box = slice(v0, v0 + rows), slice(u0, u0 + cols)
+    o[:] = -np.expm1(np.minimum(log_free[box].ravel() + sp, 0.0))
+    m = mask[box]
+    y[:] = (m if m.dtype == np.float64 else m != 0).ravel()
+
+
+def estep_camera(rays, A, e, inv, box, offset, mask, log_free, dirs, sp, o, y) -> None:
+    """One camera's E-step: body i (metric ``A[i]`` (9,), ``e[i]``, ``inv[i]``) on its box
+    ``(u0, v0, u1, v1)`` (empty: out of view) fills rows ``offset[i]..offset[i+1]`` of the
+    outputs, its box row by row: its rays copied out of the ray grid ``rays`` (H, W, 3),
+    then :func:`estep_body` per body, then :func:`estep_view` per body; ``log_free``,
+    zero on entry, is zeroed again over the boxes."""
+    boxes = [(int(u0), int(v0), int(u1 - u0), int(v1 - v0)) for u0, v0, u1, v1 in box.tolist()]
+    spans = [(int(a), int(b)) for a, b in zip(offset[:-1].tolist(), offset[1:].tolist())]
+    seen = [i for i, (_, _, cols, rows) in enumerate(boxes) if rows > 0 and cols > 0]
+    for i in seen:
+        (u0, v0, cols, rows), (a, b) = boxes[i], spans[i]
+        dirs[a:b] = rays[v0 : v0 + rows, u0 : u0 + cols].reshape(-1, 3)
+        estep_body(dirs[a:b], A[i].reshape(3, 3), e[i], inv[i], log_free, v0, u0, rows, cols, sp[a:b], None, 1.0)
+    for i in seen:
+        (u0, v0, cols, rows), (a, b) = boxes[i], spans[i]
+        estep_view(log_free, mask, v0, u0, rows, cols, sp[a:b], o[a:b], y[a:b])
+    for i in seen:
+        u0, v0, cols, rows = boxes[i]
+        log_free[v0 : v0 + rows, u0 : u0 + cols] = 0.0
+
+
+def _views_eval(views, R: np.ndarray, t: np.ndarray, inner: np.ndarray):
+    """Cost, evidence, gradient (6) and Gauss-Newton matrix (6x6) of one body at (R, t)
+    over ``views`` (:func:`fit_body`)."""
+    A = (R / inner**2) @ R.T
+    cost = evidence = 0.0
+    grad, H = np.zeros(6), np.zeros((6, 6))
+    for dirs, centre, inv, y, o, weight in views:
+        c, ev = silhouette_fit(dirs, A, centre - t, inv, y, o, weight, True, H, grad)
+        cost += c
+        evidence += ev
+    return cost, evidence, grad, H
+
+
+def fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> tuple[float, float]:
+    """One body's M-step (:func:`kms2pin.ecm.mstep.fit_body`): damped Gauss-Newton on its
+    world pose from ``(R, t)`` over ``views``, each ``(dirs, camera centre, inv = 1/(2δ),
+    y, o, weight or None)``; ``max_step <= 0``: no cap.  Sets the pose and the
+    Gauss-Newton matrix at it; returns (evidence, cost)."""
+    R, t, inner = np.array(R, dtype=float), np.array(t, dtype=float), np.asarray(inner, dtype=float)
+    cost, evidence, grad, H = _views_eval(views, R, t, inner)
+    if np.any(H):
+        size = float(np.mean(inner))
+        S = np.r_[np.full(3, size), np.ones(3)]
+        offset = np.zeros(6)  # accumulated move from the start (first order in rotation)
+        prior = damping * max(float(np.max(np.diag(S[:, None] * H * S[None, :]))), 1e-12)
+        lam = 1e-3
+        stepn = np.empty(6)
+        for _ in range(iterations):
+            Hn = S[:, None] * H * S[None, :]
+            gn = S * grad + prior * offset / S
+            improved = False
+            for _ in range(6):
+                if not solve_shifted(Hn, gn, prior + lam * float(np.max(np.diag(Hn))), stepn):
+                    break
+                if max_step > 0:
+                    big = max(np.linalg.norm(stepn[:3]), np.linalg.norm(stepn[3:]))
+                    stepn *= min(1.0, max_step / max(big, 1e-300))
+                step = stepn * S
+                R2, t2 = pin.exp3(step[3:]) @ R, t + step[:3]
+                c2, e2, g2, H2 = _views_eval(views, R2, t2, inner)
+                new_off = offset + step
+                p_old = 0.5 * prior * float(np.sum((offset / S) ** 2))
+                p_new = 0.5 * prior * float(np.sum((new_off / S) ** 2))
+                if 0.5 * c2 + p_new <= 0.5 * cost + p_old:
+                    R, t, offset, cost, grad, H, evidence = R2, t2, new_off, c2, g2, H2, e2
+                    lam = max(lam * 0.3, 1e-6)
+                    improved = True
+                    break
+                lam *= 10.0
+            if not improved:
+                break
+    R_out[:], t_out[:], H_out[:] = R, t, H
+    return evidence, cost
+
+
+def body_boxes(R, t, inner, Rwc, centre, K, delta_px, slack_px, width, height, box, delta, status) -> None:
+    """Per body (rotation ``R[i]`` (9,), centre ``t[i]``, inner semi-axes ``inner[i]``, world)
+    in an undistorted camera (``Rwc`` its world rotation, ``centre``, intrinsics ``K``):
+    its edge width ``delta`` (``delta_px`` over a rough outline radius, in 1e-6..0.08) and
+    ``status`` 2 with ``box[i] = (u0, v0, u1, v1)``, the pixel box of its inner ellipsoid
+    grown to ``h = -H_CUT`` plus ``slack_px`` (the image of the grown quadric,
+    ``C* = P Q* Pᵀ``); 0: not in view (behind the camera: ``delta`` 0); 1: straddling
+    the camera plane, containing the camera or degenerate.  ``box`` is written for
+    status 2 only."""
+    n = len(R)
+    Rs = R.reshape(n, 3, 3)
+    mu = (t - centre) @ Rwc  # camera-frame centres
+    depth = mu[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Ls = np.sort(inner, axis=1)
+        radius_px = np.sqrt(K[0, 0] * K[1, 1]) * np.sqrt(Ls[:, 0] * Ls[:, 1]) / depth
+        r = np.maximum(radius_px, 1e-6)
+        dl = np.minimum(np.maximum(delta_px / r, 1e-6), 0.08)
+        L = inner * (np.sqrt(1.0 + 2.0 * H_CUT * dl) + slack_px / r)[:, None]
+        R_cb = Rwc.T @ Rs
+        sigma = (R_cb * L[:, None, :] ** 2) @ R_cb.transpose(0, 2, 1)
+        c_body = -np.einsum("ni,nij->nj", mu, R_cb)  # camera centre in the body frames
+        inside = ((c_body / L) ** 2).sum(axis=1) <= 1.0
+        front = ~inside & (mu[:, 2] - np.sqrt(sigma[:, 2, 2]) > 0)
+        D = K @ (sigma - mu[:, :, None] * mu[:, None, :]) @ K.T  # dual conics P Q* P^T
+        a = D[:, 2, 2]
+        lo, hi = [], []
+        for i in (0, 1):
+            b, c = D[:, i, 2], D[:, i, i]
+            rt = np.sqrt(np.maximum(b * b - a * c, 0.0))
+            k1, k2 = (b - rt) / a, (b + rt) / a
+            lo.append(np.minimum(k1, k2))
+            hi.append(np.maximum(k1, k2))
+    finite = np.isfinite(lo[0]) & np.isfinite(lo[1]) & np.isfinite(hi[0]) & np.isfinite(hi[1])
+    visible = depth > 1e-9 * inner.max(axis=1)
+    st = np.where(front & finite, 2.0, 1.0)
+    st[~visible] = 0.0
+    ok = st == 2
+    b = np.empty((int(ok.sum()), 4))
+    b[:, 0] = np.maximum(np.ceil(lo[0][ok]) - 1, 0)
+    b[:, 1] = np.maximum(np.ceil(lo[1][ok]) - 1, 0)
+    b[:, 2] = np.minimum(np.floor(hi[0][ok]) + 2, width)
+    b[:, 3] = np.minimum(np.floor(hi[1][ok]) + 2, height)
+    empty = (b[:, 2] <= b[:, 0]) | (b[:, 3] <= b[:, 1])  # out of the image
+    st[np.flatnonzero(ok)[empty]] = 0.0
+    box[np.flatnonzero(ok)[~empty]] = b[~empty]
+    delta[:] = np.where(visible, dl, 0.0)
+    status[:] = st

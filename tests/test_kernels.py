@@ -1,0 +1,314 @@
+"""The C kernels (kms2pin/_kernels.c) and their NumPy twins (kms2pin/_numpy_kernels.py):
+the same outputs on random inputs, kernel by kernel, and the switch between them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import require_kernels
+
+from kms2pin import native
+
+
+def _quats(rng: np.random.Generator, n: int) -> np.ndarray:
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _coords(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 7) random XYZQUAT placements."""
+    return np.concatenate([rng.normal(size=(n, 3)), _quats(rng, n)], axis=1)
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    return pin.Quaternion(*_quats(rng, 1)[0]).toRotationMatrix()
+
+
+def _metric(R: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    return (R / inner**2) @ R.T
+
+
+def _strided(a: np.ndarray) -> np.ndarray:
+    """The same values in a non-contiguous array (the C kernels' scalar loops)."""
+    big = np.zeros((2 * a.shape[0],) + a.shape[1:])
+    big[::2] = a
+    return big[::2]
+
+
+def _rays(rows: int, cols: int, half: float = 0.2) -> np.ndarray:
+    """(rows, cols, 3) pixel rays at unit depth of a camera at the origin looking along +z."""
+    v, u = np.meshgrid(np.linspace(-half, half, rows), np.linspace(-half, half, cols), indexing="ij")
+    return np.ascontiguousarray(np.stack([u, v, np.ones_like(u)], axis=-1))
+
+
+def _body(rng: np.random.Generator):
+    """A body 8 units in front of the camera: rotation, centre, inner semi-axes, metric
+    A and camera centre relative to it e."""
+    R, t, inner = _rotation(rng), np.array([0.1, -0.2, 8.0]) + rng.normal(0, 0.1, 3), np.array([0.3, 0.8, 0.4])
+    return R, t, inner, _metric(R, inner), -t
+
+
+def _view_data(rng: np.random.Generator, dirs: np.ndarray, weighted: bool):
+    """A mask drawn by the body moved a little, others' shares and inlier weights."""
+    R, t, inner, A, e = _body(rng)
+    a2 = np.empty(len(dirs))
+    native.implementations("ellipsoid_a2")["numpy"](dirs, _metric(R, inner * 1.05), e - rng.normal(0, 0.05, 3), a2)
+    y = (a2 <= 1.0).astype(float)
+    o = rng.uniform(0, 0.5, len(dirs))
+    w = rng.uniform(0.5, 1.0, len(dirs)) if weighted else None
+    return R, t, inner, A, e, y, o, w
+
+
+# Each case: kernel name -> (args, the indices of the arguments it writes); rng seeded per case.
+
+
+def _linearize(rng, hessian=True, one_k=False):
+    n, nv = 6, 10
+    S = (rng.random((n, nv)) < 0.6).astype(float)
+    S[:, :6] = 1.0  # the free flyer moves every body
+    same = np.eye(nv)
+    same[:6, :6] = 1.0  # a free flyer's six columns
+    K = np.full((n, 7), 2.0) if one_k else rng.uniform(0.5, 2.0, (n, 7))
+    if not one_k:
+        K[2] = 0.0  # a body without springs
+    args = [rng.normal(size=(6, nv)), _coords(rng, n), _coords(rng, n), K, S, same,
+            np.empty(nv), np.empty((nv, nv)), np.empty((n, 7)), hessian]
+    return args, (6, 7, 8)
+
+
+def _frame_coordinates(rng):
+    rows = list(_coords(rng, 5))
+    return [rows, rng.integers(0, 5, 8).astype(float), _coords(rng, 8), np.empty((8, 7))], (3,)
+
+
+def _ellipsoid_a2(rng, strided=False):
+    dirs = _rays(30, 40).reshape(-1, 3)
+    _, _, _, A, e = _body(rng)
+    if strided:
+        dirs = _strided(dirs)
+    return [dirs, A, e, np.empty(len(dirs))], (3,)
+
+
+def _silhouette_fit(rng, jac=True, weighted=True, strided=False):
+    dirs = _rays(40, 50, 0.4).reshape(-1, 3)  # far pixels too: h << -40
+    _, _, _, A, e, y, o, w = _view_data(rng, dirs, weighted)
+    if strided:
+        dirs, y, o, w = _strided(dirs), _strided(y), _strided(o), None if w is None else _strided(w)
+    H0 = rng.normal(size=(6, 6))
+    return [dirs, A, e, 10.0, y, o, w, jac, H0 + H0.T, rng.normal(size=6)], (8, 9)
+
+
+def _scale_fit(rng, weighted=True):
+    dirs = _rays(40, 50).reshape(-1, 3)
+    R, _, inner, A, e, y, o, w = _view_data(rng, dirs, weighted)
+    return [dirs, A, e, R, inner, 6.0, y, o, w, np.eye(3), rng.normal(size=3)], (9, 10)
+
+
+def _estep_body(rng, outlier=False, strided=False):
+    rows, cols = 30, 40
+    dirs = _rays(rows, cols).reshape(-1, 3)
+    _, _, _, A, e = _body(rng)
+    if strided:
+        dirs = _strided(dirs)
+    log_free = -rng.uniform(0, 3, (50, 60))
+    log_free_o = -rng.uniform(0, 3, (50, 60)) if outlier else None
+    return [dirs, A, e, 8.0, log_free, 7, 11, rows, cols, np.empty(rows * cols), log_free_o, 0.4], (4, 9, 10)
+
+
+def _estep_view(rng, mask="bool"):
+    rows, cols = 30, 40
+    m = rng.random((50, 60))
+    masks = {"bool": m < 0.5, "uint8": np.where(m < 0.5, 255, 0).astype(np.uint8), "float64": m}
+    sp = rng.uniform(0, 5, rows * cols)
+    log_free = -rng.uniform(0, 8, (50, 60))
+    return [log_free, masks[mask], 7, 11, rows, cols, sp, np.empty(rows * cols), np.empty(rows * cols)], (7, 8)
+
+
+def _estep_camera(rng, mask="bool"):
+    H, W, n = 60, 80, 5
+    rays = _rays(H, W, 0.3)
+    boxes = np.array([[10, 5, 40, 30], [30, 20, 70, 55], [0, 0, 0, 0], [25, 10, 60, 40], [0, 50, 80, 60]], float)
+    offset = np.zeros(n + 1)
+    offset[1:] = np.cumsum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]))
+    N = int(offset[-1])
+    A, e = [], []
+    for _ in range(n):
+        _, _, _, Ai, ei = _body(rng)
+        A.append(Ai.ravel())
+        e.append(ei + rng.normal(0, 0.3, 3))
+    m = rng.random((H, W))
+    masks = {"bool": m < 0.5, "float64": m}
+    args = [rays, np.array(A), np.array(e), rng.uniform(3, 12, n), boxes, offset, masks[mask], np.zeros((H, W)),
+            np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)]
+    return args, (7, 8, 9, 10, 11)
+
+
+def _fit_body(rng, max_step=-1.0, weighted=False):
+    """Two cameras (at the origin looking along +z, at (8, 0, 8) along -x) see the body
+    moved a little from where the fit starts."""
+    R, t, inner, _, _ = _body(rng)
+    R_true, t_true = pin.exp3(rng.normal(0, 0.05, 3)) @ R, t + rng.normal(0, 0.03, 3)
+    front = _rays(40, 50, 0.15).reshape(-1, 3)
+    views = []
+    for centre, dirs in ((np.zeros(3), front), (np.array([8.0, 0.0, 8.0]), front[:, [2, 1, 0]] * [-1, 1, 1])):
+        a2 = np.empty(len(dirs))
+        native.implementations("ellipsoid_a2")["numpy"](dirs, _metric(R_true, inner), centre - t_true, a2)
+        w = rng.uniform(0.5, 1.0, len(dirs)) if weighted else None
+        views.append((dirs, centre, 8.0, (a2 <= 1.0).astype(float), rng.uniform(0, 0.1, len(dirs)), w))
+    return [views, R, t, inner, 4, 1e-2, max_step, np.empty((3, 3)), np.empty(3), np.empty((6, 6))], (7, 8, 9)
+
+
+def _pose_springs(rng):
+    n, nv = 6, 10
+    B = rng.normal(size=(n, 6, 6))
+    K = (B @ B.transpose(0, 2, 1) + 6 * np.eye(6)).reshape(n, 36)
+    S = (rng.random((n, nv)) < 0.7).astype(float)
+    X, T = _coords(rng, n), _coords(rng, n)
+    T[:, 3:] = -T[:, 3:]  # either sign: the same rotation
+    return [rng.normal(size=(6, nv)), X, T, K, S, np.empty((nv, nv)), np.empty(nv)], (5, 6)
+
+
+def _body_boxes(rng):
+    n = 40
+    K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
+    Rwc, centre = _rotation(rng), rng.normal(size=3)
+    local = np.c_[rng.uniform(-6, 6, (n, 2)), rng.uniform(-2, 14, n)]  # behind, straddling, in front
+    t = centre + local @ Rwc.T
+    Rs = np.array([_rotation(rng).ravel() for _ in range(n)])
+    inner = rng.uniform(0.2, 1.0, (n, 3))
+    return [Rs, t, inner, Rwc, centre, K, 0.7, 2.0, 320, 240, np.zeros((n, 4)), np.empty(n), np.empty(n)], (10, 11, 12)
+
+
+def _solve_shifted(rng, definite=True, shift=0.0):
+    M = rng.normal(size=(7, 7))
+    H = M @ M.T if definite else M + M.T
+    return [H, rng.normal(size=7), shift, np.full(7, 3.0)], (3,)
+
+
+CASES: dict[str, Callable] = {
+    "linearize": _linearize,
+    "linearize-gauss-newton-one-k": lambda rng: _linearize(rng, hessian=False, one_k=True),
+    "frame_coordinates": _frame_coordinates,
+    "ellipsoid_a2": _ellipsoid_a2,
+    "ellipsoid_a2-strided": lambda rng: _ellipsoid_a2(rng, strided=True),
+    "silhouette_fit": _silhouette_fit,
+    "silhouette_fit-unweighted": lambda rng: _silhouette_fit(rng, weighted=False),
+    "silhouette_fit-no-jacobian": lambda rng: _silhouette_fit(rng, jac=False),
+    "silhouette_fit-strided": lambda rng: _silhouette_fit(rng, strided=True),
+    "scale_fit": _scale_fit,
+    "scale_fit-unweighted": lambda rng: _scale_fit(rng, weighted=False),
+    "estep_body": _estep_body,
+    "estep_body-outlier": lambda rng: _estep_body(rng, outlier=True),
+    "estep_body-strided": lambda rng: _estep_body(rng, outlier=True, strided=True),
+    "estep_view": _estep_view,
+    "estep_view-uint8": lambda rng: _estep_view(rng, "uint8"),
+    "estep_view-float64": lambda rng: _estep_view(rng, "float64"),
+    "estep_camera": _estep_camera,
+    "estep_camera-float64": lambda rng: _estep_camera(rng, "float64"),
+    "fit_body": _fit_body,
+    "fit_body-max-step-weighted": lambda rng: _fit_body(rng, max_step=0.02, weighted=True),
+    "pose_springs": _pose_springs,
+    "body_boxes": _body_boxes,
+    "solve_shifted": _solve_shifted,
+    "solve_shifted-indefinite": lambda rng: _solve_shifted(rng, definite=False),
+    "solve_shifted-shifted": lambda rng: _solve_shifted(rng, definite=False, shift=20.0),
+}
+
+
+def _copy(a):
+    if isinstance(a, np.ndarray):
+        return a.copy()
+    if isinstance(a, list):
+        return [_copy(x) for x in a]
+    return a
+
+
+def _assert_close(c, n, what: str) -> None:
+    c, n = np.asarray(c, dtype=float), np.asarray(n, dtype=float)
+    scale = float(np.abs(n).max()) if n.size else 0.0
+    np.testing.assert_allclose(c, n, rtol=1e-9, atol=1e-12 * scale, err_msg=what)
+
+
+def test_every_kernel_has_a_case():
+    assert {case.split("-")[0] for case in CASES} == set(native.NAMES)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_c_and_numpy_kernels_agree(case):
+    """The C kernel and its NumPy twin return the same values and write the same outputs."""
+    require_kernels()
+    name = case.split("-")[0]
+    impl = native.implementations(name)
+    args, outs = CASES[case](np.random.default_rng(sorted(CASES).index(case)))
+    results = {}
+    for backend in ("c", "numpy"):
+        a = _copy(args)
+        results[backend] = (impl[backend](*a), [a[i] for i in outs])
+    (rc, oc), (rn, on) = results["c"], results["numpy"]
+    assert type(rc) is type(rn)
+    if isinstance(rn, tuple):
+        for k, (x, y) in enumerate(zip(rc, rn)):
+            _assert_close(x, y, f"return value {k}")
+    elif rn is not None:
+        _assert_close(rc, rn, "return value")
+    for i, x, y in zip(outs, oc, on):
+        _assert_close(x, y, f"argument {i}")
+    if name == "body_boxes":
+        assert set(on[2].tolist()) == {0.0, 1.0, 2.0}  # out of view, per body and boxed all met
+        np.testing.assert_array_equal(oc[0], on[0])
+    if name == "solve_shifted":
+        assert rn is (case != "solve_shifted-indefinite")
+    if name == "estep_camera":
+        assert not on[0].any()  # the union image zeroed again
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_frame_coordinates_compose_the_placements(backend):
+    """out[i] = rows[joints[i]] * offsets[i], as Pinocchio composes SE3 placements."""
+    if backend == "c":
+        require_kernels()
+    rng = np.random.default_rng(3)
+    (rows, joints, offsets, out), _ = _frame_coordinates(rng)
+    native.implementations("frame_coordinates")[backend](rows, joints, offsets, out)
+    for i, j in enumerate(joints.astype(int)):
+        M = pin.XYZQUATToSE3(rows[j]) * pin.XYZQUATToSE3(offsets[i])
+        np.testing.assert_allclose(pin.XYZQUATToSE3(out[i]).homogeneous, M.homogeneous, atol=1e-12)
+
+
+def test_use_switches_every_kernel_and_restores_the_choice():
+    before = {name: getattr(native.kernels, name) for name in native.NAMES}
+    enabled = native.ENABLED
+    with native.use("numpy") as k:
+        assert k is native.kernels and not native.ENABLED
+        assert all(getattr(k, n) is native.implementations(n)["numpy"] for n in native.NAMES)
+    assert {name: getattr(native.kernels, name) for name in native.NAMES} == before
+    assert native.ENABLED == enabled
+    if native.BUILT:
+        with native.use("c"):
+            assert native.ENABLED
+            assert all(getattr(native.kernels, n) is native.implementations(n)["c"] for n in native.NAMES)
+    with pytest.raises(ValueError, match="one of c, numpy"), native.use("fortran"):
+        pass
+    with pytest.raises(KeyError, match="no kernel 'fit'"):
+        native.implementations("fit")
+
+
+def test_the_extension_has_exactly_the_numpy_kernels():
+    c = require_kernels()
+    assert {n for n in dir(c) if callable(getattr(c, n)) and not n.startswith("_")} == set(native.NAMES)
+
+
+@pytest.mark.parametrize("value, enabled", [("0", False), ("1", True)])
+def test_kms2pin_native_chooses_the_backend(value, enabled):
+    if enabled:
+        require_kernels()
+    env = {**os.environ, "KMS2PIN_NATIVE": value}
+    out = subprocess.run([sys.executable, "-c", "from kms2pin import native; print(native.ENABLED, "
+                          "native.kernels.fit_body.__module__)"], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == [str(enabled), "kms2pin._kernels" if enabled else "kms2pin._numpy_kernels"]
