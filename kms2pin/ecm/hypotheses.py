@@ -28,8 +28,9 @@ from .loop import FrameECM
 from .masks import Views
 from .prediction import Motion
 from .state import SequenceState
+from .symmetry import Symmetry, spherical_angle
 
-__all__ = ["KIND_WORDS", "Hypotheses", "Hypothesis", "mirror_pose", "swap_pose"]
+__all__ = ["KIND_WORDS", "Hypotheses", "Hypothesis", "mirror_pose"]
 
 #: how a switch to each kind of hypothesis is reported
 KIND_WORDS = {"mirror": "mirror", "swap": "left/right-swapped", "limb": "limb-search"}
@@ -64,14 +65,6 @@ def mirror_pose(q: np.ndarray, camera: Camera, sagittal: np.ndarray) -> np.ndarr
     return out
 
 
-def swap_pose(q: np.ndarray, pairs: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """``q`` with the coordinates of every left/right pair of joints (q indices) exchanged."""
-    out = q.copy()
-    a, b = pairs
-    out[a], out[b] = q[b], q[a]
-    return out
-
-
 def root_angle(a: np.ndarray, b: np.ndarray) -> float:
     """The angle (rad) between two free-root configurations' root orientations."""
     Ra, Rb = pin.XYZQUATToSE3(a[:7]).rotation, pin.XYZQUATToSE3(b[:7]).rotation
@@ -87,18 +80,18 @@ class Hypotheses:
         kinds: which kinds are tracked, each with its margin (``"mirror"``, ``"swap"``,
             ``"limb"``).
         sagittal: the model's left/right reflection (root frame), for the mirror.
-        swap_pairs: the left/right joints' q indices, for the swap.
+        symmetry: the model's twin joints (:class:`Symmetry`), for the swap.
         joint_dofs: the velocity indices of the joints (not the free root).
         iterations: ECM iterations of an alternative a frame.
         binned: track the alternatives on the masks binned 2x2.
     """
 
     def __init__(self, robot: Robot, ecm: FrameECM, motion: Motion, kinds: dict[str, float],
-                 sagittal: np.ndarray | None, swap_pairs, joint_dofs: np.ndarray, iterations: int, binned: bool,
+                 sagittal: np.ndarray | None, symmetry: Symmetry | None, joint_dofs: np.ndarray, iterations: int, binned: bool,
                  predict: bool):
         self.robot, self.ecm, self.motion = robot, ecm, motion
         self.margins = dict(kinds)
-        self.sagittal, self.swap_pairs = sagittal, swap_pairs
+        self.sagittal, self.symmetry = sagittal, symmetry
         self.joint_dofs = joint_dofs
         self.iterations, self.binned, self.predict = iterations, binned, predict
         self.alts: dict[str, Hypothesis] = {}
@@ -107,7 +100,7 @@ class Hypotheses:
         if kind == "mirror":
             return mirror_pose(q, camera, self.sagittal)
         if kind == "swap":
-            return swap_pose(q, self.swap_pairs)
+            return self.symmetry.swap(q)
         return None  # "limb" is spawned by the limb search
 
     def merged(self, kind: str, qa: np.ndarray, q: np.ndarray) -> bool:
@@ -117,9 +110,15 @@ class Hypotheses:
         if kind == "mirror":
             return True
         if kind == "limb":
-            return float(np.abs(pin.difference(self.robot.model, qa, q)[self.joint_dofs]).max()) < MERGE
-        a, b = self.swap_pairs
-        return float(np.abs(np.concatenate([qa[a] - q[a], qa[b] - q[b]])).max()) < MERGE
+            dq = self.motion.scaled(np.abs(pin.difference(self.robot.model, qa, q)))
+            return float(dq[self.joint_dofs].max()) < MERGE
+        worst = 0.0
+        for j in self.symmetry.swapped_joints():
+            if j.kind == "spherical":
+                worst = max(worst, spherical_angle(qa[j.idx_q : j.idx_q + 4], q[j.idx_q : j.idx_q + 4]))
+            else:
+                worst = max(worst, float(abs(qa[j.idx_q] - q[j.idx_q])))
+        return worst < MERGE
 
     def _track(self, alt: Hypothesis, views: Views, timings: dict, coarse: Views | None,
                binned: bool, smoothing: float) -> Hypothesis:

@@ -17,12 +17,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
-from ..robot import Robot
-from .limbs import limb_joints, twin_limbs
+from ..robot import JointCoordinates, Robot
+from .limbs import left_right_pairs, limb_joints, movable, twin_name
 from .loop import FrameECM
 from .masks import Views
 from .state import SequenceState
+from .symmetry import Symmetry
 
 __all__ = ["GAIN", "LimbMove", "LimbSearch"]
 
@@ -61,34 +63,123 @@ class LimbMove:
         return f"swapped '{self.joints[0]}' and '{self.joints[1]}'"
 
 
+@dataclass(frozen=True)
+class Limb:
+    """A limb: its first joint and the joints below it (revolute, prismatic, spherical),
+    with their q and velocity indices."""
+
+    first: JointCoordinates
+    below: tuple[JointCoordinates, ...]
+
+    @property
+    def chain(self) -> tuple[JointCoordinates, ...]:
+        return (self.first, *self.below)
+
+    @staticmethod
+    def _q(joints) -> np.ndarray:
+        return np.array([k for j in joints for k in range(j.idx_q, j.idx_q + j.nq)], dtype=int)
+
+    @property
+    def below_q(self) -> np.ndarray:
+        return self._q(self.below)
+
+    @property
+    def below_v(self) -> np.ndarray:
+        return np.array([k for j in self.below for k in range(j.idx_v, j.idx_v + (3 if j.kind == "spherical" else 1))],
+                        dtype=int)
+
+    @property
+    def indices(self) -> np.ndarray:
+        return self._q(self.chain)
+
+
+def _swing(q: np.ndarray, rest: np.ndarray, j: JointCoordinates) -> np.ndarray:
+    """``q`` with joint ``j`` swung the other way about its rest value: the angle or offset
+    reflected (2 rest - q); a spherical joint's swing about its parent end's axis u
+    reflected, the rest of its rotation kept (R = Exp(v) R_rest turned to Exp(v - 2 (v.u) u) R_rest,
+    v in the parent's axes): what one view confuses is the swing, as for a revolute joint."""
+    c = q.copy()
+    if j.kind != "spherical":
+        c[j.idx_q] = 2.0 * rest[j.idx_q] - q[j.idx_q]
+        return c
+    R0, R = (pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+             for x in (rest[j.idx_q : j.idx_q + 4], q[j.idx_q : j.idx_q + 4]))
+    u = np.asarray(j.spec.parent_bvec.orient, dtype=float)
+    u = u / np.linalg.norm(u)
+    v = pin.log3(R @ R0.T)
+    c[j.idx_q : j.idx_q + 4] = pin.Quaternion(pin.exp3(v - 2.0 * float(v @ u) * u) @ R0).coeffs()
+    return c
+
+
 class LimbSearch:
     """The limb search of one track over ``robot``'s limbs (:func:`limb_joints`),
-    screening and refining candidates with ``ecm``."""
+    screening and refining candidates with ``ecm``; twin limbs are exchanged mirrored
+    (``symmetry``; one-coordinate twins exchange their values without one)."""
 
-    def __init__(self, robot: Robot, ecm: FrameECM):
-        self.robot, self.ecm = robot, ecm
+    def __init__(self, robot: Robot, ecm: FrameECM, symmetry: Symmetry | None = None):
+        self.robot, self.ecm, self.symmetry = robot, ecm, symmetry
         m = robot.model
-        # limb joint name -> (its q index, q indices of the revolute joints below it)
-        self.limbs: dict[str, tuple[int, np.ndarray]] = {}
+        by_id = {m.getJointId(j.name): j for j in robot.joints}
+        self.limbs: dict[str, Limb] = {}
         for name in limb_joints(robot):
-            j = m.getJointId(name)
-            below = [m.joints[k].idx_q for k in m.subtrees[j][1:] if m.joints[k].nq == 1]
-            self.limbs[name] = (m.joints[j].idx_q, np.array(below, dtype=int))
-        self.pairs = twin_limbs(robot, list(self.limbs))
+            jid = m.getJointId(name)
+            below = tuple(by_id[k] for k in m.subtrees[jid][1:] if movable(robot, k))
+            self.limbs[name] = Limb(by_id[jid], below)
+        self.pairs = self._twins()
+
+    def _twins(self) -> list[tuple[str, str, Limb, Limb]]:
+        """The pairs of twin limbs whose joints all have twins (in the same order)."""
+        by_low = {j.name.lower(): j for j in self.robot.joints}
+        pairs = []
+        for i, t in left_right_pairs(list(self.limbs)):
+            name, twin = list(self.limbs)[i], list(self.limbs)[t]
+            left = self.limbs[name]
+            mates = [by_low.get(twin_name(j.name.lower())) for j in left.chain]
+            if any(x is None or x.kind != j.kind for x, j in zip(mates, left.chain)):
+                continue
+            if any(j.kind == "spherical" for j in left.chain) and self.symmetry is None:
+                continue
+            pairs.append((name, twin, left, Limb(mates[0], tuple(mates[1:]))))
+        return pairs
 
     def exchange_move(self, left: str, right: str) -> LimbMove:
         """The move that exchanges twin limbs ``left`` and ``right`` (their first joints)."""
-        iq = np.concatenate([np.r_[self.limbs[n][0], self.limbs[n][1]] for n in (left, right)]).astype(int)
+        iq = np.concatenate([self.limbs[n].indices for n in (left, right)]).astype(int)
         return LimbMove("exchange", (left, right), iq)
 
-    def _exchanged(self, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-        """``q`` with the angles at q indices ``a`` and ``b`` (twin limbs) exchanged, or
-        None if no angle of theirs differs by :data:`MIN_ANGLE`."""
-        if np.abs(q[a] - q[b]).max() < MIN_ANGLE:
+    def _exchanged(self, q: np.ndarray, a: Limb, b: Limb) -> np.ndarray | None:
+        """``q`` with twin limbs ``a`` and ``b`` exchanged (mirrored), or None if no joint of
+        theirs differs from its twin's mirror by :data:`MIN_ANGLE`."""
+        if all(j.kind != "spherical" for j in a.chain):
+            ia, ib = a.indices, b.indices
+            if np.abs(q[ia] - q[ib]).max() < MIN_ANGLE:
+                return None
+            c = q.copy()
+            c[ia], c[ib] = q[ib], q[ia]
+            return self.robot.clamp(c)
+        if self.symmetry.difference(q, a.chain, b.chain) < MIN_ANGLE:
             return None
-        c = q.copy()
-        c[a], c[b] = q[b], q[a]
-        return self.robot.clamp(c)
+        return self.robot.clamp(self.symmetry.exchange(q, a.chain, b.chain))
+
+    def _bend(self, q: np.ndarray, j: JointCoordinates) -> float:
+        """A first joint's bend for the crossing test: its angle or offset; a spherical
+        joint's rotation about its parent end's axis (rad)."""
+        if j.kind != "spherical":
+            return float(q[j.idx_q])
+        x = q[j.idx_q : j.idx_q + 4]
+        R = pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+        return float(pin.log3(R) @ np.asarray(j.spec.parent_bvec.orient, dtype=float))
+
+    @staticmethod
+    def _swung(q: np.ndarray, rest: np.ndarray, j: JointCoordinates) -> float:
+        """How far a first joint is swung from rest: the angle or offset; a spherical
+        joint's rotation about its parent end's axis (rad)."""
+        if j.kind != "spherical":
+            return abs(q[j.idx_q] - rest[j.idx_q])
+        R0, R = (pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+                 for x in (rest[j.idx_q : j.idx_q + 4], q[j.idx_q : j.idx_q + 4]))
+        u = np.asarray(j.spec.parent_bvec.orient, dtype=float)
+        return abs(float(pin.log3(R @ R0.T) @ u)) / float(np.linalg.norm(u))
 
     def candidates(self, q: np.ndarray) -> list[tuple[LimbMove, np.ndarray]]:
         """Every move from ``q`` with its configuration: twin limbs exchanged; each limb
@@ -101,17 +192,18 @@ class LimbSearch:
             c = self._exchanged(q, a, b)
             if c is not None:
                 out.append((self.exchange_move(left, right), c))
-        for name, (iq, below) in self.limbs.items():
-            indices = np.r_[iq, below].astype(int)
-            far_below = len(below) and np.abs(q[below] - rest[below]).max() >= MIN_ANGLE
+        away = np.abs(pin.difference(self.robot.model, rest, q))  # tangent: no arithmetic on quaternions
+        for name, limb in self.limbs.items():
+            indices, below = limb.indices, limb.below_q
+            far_below = len(below) and away[limb.below_v].max() >= MIN_ANGLE
             if far_below:
                 c = q.copy()
                 c[below] = rest[below]
                 out.append((LimbMove("reset", (name,), indices), self.robot.clamp(c)))
-            if abs(q[iq] - rest[iq]) < MIN_ANGLE:
+            if self._swung(q, rest, limb.first) < MIN_ANGLE:
                 continue
-            c = q.copy()
-            c[iq] = 2.0 * rest[iq] - q[iq]
+            first = limb.first
+            c = _swing(q, rest, first)
             swing = LimbMove("swing", (name,), indices)
             out.append((swing, self.robot.clamp(c)))
             if far_below:
@@ -156,13 +248,14 @@ class LimbSearch:
     def exchange_crossed(self, q: np.ndarray, fit: float, state: SequenceState, views: Views,
                          coarse: Callable[[], Views | None], timings: dict) -> tuple[np.ndarray, float, LimbMove | None]:
         """Try the exchange of twin limbs that crossed in the last :data:`CROSS_FRAMES`
-        frames (their first joints within :data:`CROSS_ANGLE`, or passed each other since
-        the last frame, recorded in ``state.crossed``); keep it if it gains :data:`GAIN`.
-        Returns as :meth:`search`."""
+        frames (their first joints' bends within :data:`CROSS_ANGLE`, or passed each other
+        since the last frame, recorded in ``state.crossed``); keep it if it gains
+        :data:`GAIN`.  Returns as :meth:`search`."""
         out = (q, fit, None)
         views_c = None
         for left, right, a, b in self.pairs:
-            d, d_last = q[a[0]] - q[b[0]], state.q[a[0]] - state.q[b[0]]
+            d = self._bend(q, a.first) - self._bend(q, b.first)
+            d_last = self._bend(state.q, a.first) - self._bend(state.q, b.first)
             if abs(d) < CROSS_ANGLE or d * d_last < 0.0:
                 state.crossed[left] = state.frame
                 continue

@@ -10,9 +10,10 @@ its range (its limits, or the model's height without them).
   spherical joint turns +-40 deg about its parent's x, then y, then z axis, each
   prismatic joint slides +-20 % of its range.
 - ``walk``: a walking gait (hips, knees, ankles, shoulders, elbows found by name;
-  a spherical joint swings about its parent end's axis; other joints sway gently;
-  prismatic joints stay at rest); with ``root="free"`` the body also walks across the
-  view along world x, turning round at the ends.
+  a spherical joint swings about its parent end's axis and also sways out of that
+  plane, about the axis across it and the rest vertical: hips 8°, shoulders 15°, others
+  4°; other joints sway gently; prismatic joints stay at rest); with ``root="free"``
+  the body also walks across the view along world x, turning round at the ends.
 - ``random``: every joint coordinate a sum of random low-frequency sinusoids (+-30 deg,
   a spherical joint about all three axes at once; +-15 % of a prismatic range).
 
@@ -102,6 +103,23 @@ def _gait_angle(name: str, phase: np.ndarray) -> np.ndarray:
     return np.radians(6.0) * np.sin(ph + 0.7)
 
 
+def _sway(name: str, phase: np.ndarray) -> np.ndarray:
+    """A spherical joint's sway out of its swing plane (rad): left and right in opposition."""
+    low = name.lower()
+    side = np.pi if "right" in low else 0.0
+    amplitude = 8.0 if "hip" in low else 15.0 if "shoulder" in low else 4.0
+    return np.radians(amplitude) * np.cos(phase + side)
+
+
+def _sway_axis(robot: Robot, j: JointCoordinates) -> np.ndarray | None:
+    """The axis (parent frame) across a spherical joint's swing axis and the vertical at rest."""
+    R = robot.body_pose(robot.q_rest, j.spec.parent).rotation if j.spec.parent else np.eye(3)
+    up = R.T @ np.array([0.0, 1.0, 0.0])
+    axis = np.cross(np.asarray(j.spec.parent_bvec.orient, dtype=float), up)
+    n = float(np.linalg.norm(axis))
+    return axis / n if n > 1e-6 else None
+
+
 def walk(robot: Robot, frames: int) -> np.ndarray:
     t = np.arange(frames) / FPS
     phase = 2.0 * np.pi * t / 1.2  # one gait cycle per 1.2 s
@@ -110,8 +128,11 @@ def walk(robot: Robot, frames: int) -> np.ndarray:
         if robot.root == "spec" and j.spec is robot.system.joints[0] or j.kind == "prismatic":
             continue  # the spec's own root joint and slides stay put
         angle = _gait_angle(j.name, phase) * _ramp(t, 0.0, 0.5)
-        if j.kind == "spherical":  # about its parent end's axis
+        if j.kind == "spherical":  # about its parent end's axis, and out of that plane
             _turn(q, j, angle[:, None] * np.asarray(j.spec.parent_bvec.orient)[None])
+            across = _sway_axis(robot, j)
+            if across is not None:
+                _turn(q, j, (_sway(j.name, phase) * _ramp(t, 0.0, 0.5))[:, None] * across[None])
         else:
             q[:, j.idx_q] += angle
     if robot.root == "free":

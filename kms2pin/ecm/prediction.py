@@ -1,8 +1,9 @@
 """Prediction of the next frame's pose and the test of a frame's convergence.
 
 Joint motion is measured in Pinocchio's tangent space (``pin.difference``), so a
-quaternion joint is compared by its rotation, never by its components.  A free root's
-translation is put on the angles' scale: 1 % of the model height counts as 1°.
+quaternion joint is compared by its rotation, never by its components.  Translations (a
+free root's, a prismatic joint's) are put on the angles' scale: 1 % of the model height
+counts as 1°.
 """
 
 from __future__ import annotations
@@ -26,12 +27,20 @@ class Motion:
         self.robot = robot
         self.root_dofs = 3 if robot.root == "free" else 0
         self.max_prediction = np.radians(float(max_prediction_deg))
+        #: the velocity indices of prismatic joints (length units, like the root's translation)
+        self.slides = np.array([j.idx_v for j in robot.joints if j.kind == "prismatic"], dtype=int)
+
+    def scaled(self, v: np.ndarray) -> np.ndarray:
+        """A tangent vector ``v`` with its translations on the angles' scale (module docstring), in place."""
+        if self.root_dofs:
+            v[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
+        if len(self.slides):
+            v[self.slides] *= np.radians(1.0) / (0.01 * self.robot.height)
+        return v
 
     def change(self, q0: np.ndarray, q1: np.ndarray) -> float:
         """The largest joint change from ``q0`` to ``q1`` (rad)."""
-        dq = np.abs(pin.difference(self.robot.model, q0, q1))
-        if self.root_dofs:
-            dq[:3] *= np.radians(1.0) / (0.01 * self.robot.height)
+        dq = self.scaled(np.abs(pin.difference(self.robot.model, q0, q1)))
         return float(dq.max()) if len(dq) else 0.0
 
     def velocity(self, prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
@@ -43,6 +52,8 @@ class Motion:
         cap = np.full(len(v), self.max_prediction)
         if self.root_dofs:
             cap[:3] = np.degrees(self.max_prediction) * 0.01 * self.robot.height
+        if len(self.slides):
+            cap[self.slides] = np.degrees(self.max_prediction) * 0.01 * self.robot.height
         return np.clip(v, -cap, cap)
 
     def predict(self, cur: np.ndarray, prev: np.ndarray | None) -> np.ndarray:

@@ -30,7 +30,7 @@ from ..errors import CameraError, InputDataError, OptionError
 from ..robot import Robot
 from .camera import Camera
 from .hypotheses import KIND_WORDS, Hypotheses
-from .limbs import left_right_joints, sagittal_mirror
+from .limbs import sagittal_mirror
 from .limbsearch import LimbMove, LimbSearch
 from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
@@ -40,6 +40,7 @@ from .priors import RestPrior, UprightPrior
 from .silhouette import visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
+from .symmetry import Symmetry
 from .trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
 
 __all__ = ["SEGMENTED_MASKS", "FrameResult", "Tracker", "Trajectory", "TrajectoryCsvWriter"]
@@ -71,7 +72,7 @@ class Tracker:
             raise OptionError("a tracker needs at least one camera")
         self.sizes = BodySizes(robot, scales)
         self._sagittal = sagittal_mirror(robot) if robot.root == "free" else None
-        self._swap_pairs = left_right_joints(robot, self._sagittal)
+        self._symmetry = Symmetry.of(robot)
         self.options = opts = self._resolve(opts)
         self._reset(robot.q_rest if q0 is None else q0, "initial pose")
         # each camera binned 2x2, for the coarse iterations, the limb search's screening
@@ -84,12 +85,12 @@ class Tracker:
         if opts.priors.rest_prior > 0 and joint_dofs.size:
             priors.append(RestPrior(opts.priors.rest_prior, robot.model, robot.q_rest, joint_dofs))
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
-        self.limbs = LimbSearch(robot, self.ecm)
+        self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
         hyp, lim = opts.hypotheses, opts.limbs
         kinds = {"mirror": hyp.mirror_margin} if hyp.mirror_hypothesis else {}
         kinds |= {"swap": hyp.swap_margin} if hyp.swap_hypothesis else {}
         kinds |= {"limb": lim.limb_margin} if lim.limb_hypothesis else {}
-        self.hypotheses = Hypotheses(robot, self.ecm, self.ecm.motion, kinds, self._sagittal, self._swap_pairs,
+        self.hypotheses = Hypotheses(robot, self.ecm, self.ecm.motion, kinds, self._sagittal, self._symmetry,
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
                                      opts.iteration.prediction == "constant_velocity")
         for c, cam in enumerate(self.cameras):
@@ -107,7 +108,7 @@ class Tracker:
         hyp, lim = opts.hypotheses, opts.limbs
         if hyp.mirror_hypothesis and self._sagittal is None:
             raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
-        if hyp.swap_hypothesis and self._swap_pairs is None:
+        if hyp.swap_hypothesis and self._symmetry is None:
             raise ValueError(
                 "swap_hypothesis needs left/right joints (names left*/right*) whose exchange mirrors the body"
             )
@@ -116,7 +117,7 @@ class Tracker:
         # as well, and the swaps did more harm than good on the benchmark
         auto = {
             "mirror_hypothesis": one and self._sagittal is not None,
-            "swap_hypothesis": one and self._swap_pairs is not None and self.robot.has_limits,
+            "swap_hypothesis": one and self._symmetry is not None and self.robot.has_limits,
             "limb_hypothesis": one,
             "hypothesis_iterations": opts.iteration.max_iterations,
         }

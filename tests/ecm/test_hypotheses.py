@@ -7,9 +7,10 @@ import pinocchio as pin
 import pytest
 
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.hypotheses import mirror_pose, swap_pose
-from kms2pin.ecm.limbs import left_right_joints, sagittal_mirror
+from kms2pin.ecm.hypotheses import mirror_pose
+from kms2pin.ecm.limbs import sagittal_mirror
 from kms2pin.ecm.motions import make_motion
+from kms2pin.ecm.symmetry import Symmetry
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.robot import load
@@ -50,18 +51,17 @@ def test_alternative_hypotheses_are_on_for_one_camera_and_a_left_right_model(tmp
     assert Tracker(thesis, _cams(thesis, 1), swap_hypothesis=True).options.hypotheses.swap_hypothesis
 
 
-@pytest.mark.parametrize("name", ["lowerbody", "fullbody"])
+@pytest.mark.parametrize("name", ["anatomical/lowerbody", "anatomical/fullbody", "human"])
 def test_the_swap_hypothesis_is_the_body_reflected_through_its_own_left_right_plane(name):
-    """Exchanging the left and right joints' angles puts every body where the
+    """Exchanging the left and right joints (a spherical hip's rotation mirrored onto its
+    twin, an unpaired spherical waist's mirrored in place) puts every body where the
     reflection of the body through its sagittal plane puts its twin (leftThigh <->
     rightThigh, the trunk onto itself), seen from any camera as the same silhouette
     under a reflection: checked with forward kinematics at random poses."""
-    robot = load(DIR / "anatomical" / f"{name}.kms", root="free")
-    a, b = left_right_joints(robot, sagittal_mirror(robot))
-    names = [robot.model.names[j] for j in range(1, robot.model.njoints)]
-    assert {robot.model.names[j] for j in range(1, robot.model.njoints) if robot.model.joints[j].idx_q in a} == {
-        n for n in names if n.startswith("left")
-    }
+    robot = load(DIR / f"{name}.kms", root="free")
+    symmetry = Symmetry.of(robot)
+    twins = {j.name for j in symmetry.swapped_joints() if j.name.startswith("left")}
+    assert twins == {j.name for j in robot.joints if j.name.startswith("left") and j.kind != "fixed"}
     root0 = pin.XYZQUATToSE3(robot.q_rest[:7])
     hips = [robot.body_pose(robot.q_rest, n).translation for n in ("leftThigh", "rightThigh")]
     lateral = root0.rotation.T @ (hips[0] - hips[1])
@@ -70,8 +70,9 @@ def test_the_swap_hypothesis_is_the_body_reflected_through_its_own_left_right_pl
     rng = np.random.default_rng(5)
     for _ in range(3):
         q = robot.clamp(robot.random_configuration(rng, 40))
-        s = swap_pose(q, (a, b))
-        np.testing.assert_array_equal(swap_pose(s, (a, b)), q)
+        s = symmetry.swap(q)
+        back = symmetry.swap(s)
+        np.testing.assert_allclose(pin.difference(robot.model, back, q), 0.0, atol=1e-12)  # an involution
         root = pin.XYZQUATToSE3(q[:7])
         for body in robot.bodies:
             twin = body.replace("left", "RIGHT").replace("right", "left").replace("RIGHT", "right")
