@@ -101,6 +101,7 @@ CASES = {
     "human-4cam": ("human", "walk", 4),
     "human-1cam": ("human", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
     "human-random-2cam": ("human", "random", 2),
+    "human-1cam-320": ("human", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
 }
 
 #: the rig's scale per spec (cameras()): the thesis's models' heights are about 3.9 units
@@ -108,7 +109,7 @@ RIG_SCALE = {"human": 0.45}
 #: the image size per spec, a multiple of 320x240: the human's arms, thin beside the
 #: thesis's chunky ellipsoids, are 3-4 pixels wide at 320x240, where 5 % noise on the
 #: boundary pixels lost two seeds of three with two cameras (docs/benchmarks.md)
-RESOLUTION = {"human": 2}
+RESOLUTION = {"human": 2, "human-1cam-320": 1}  # by spec, or by case
 
 
 def upscaled(camera, f):
@@ -138,7 +139,8 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, restart=None, *
     robot = load(SPECS / f"{spec}.kms", root="free")
     rng = np.random.default_rng(seed)
     motion = make_motion(robot, motion_name, frames, rng)
-    cams = [upscaled(c, RESOLUTION.get(spec, 1)) for c in cameras(robot, ncam, level, RIG_SCALE.get(spec, 1.0))]
+    f = RESOLUTION.get(name, RESOLUTION.get(spec, 1))
+    cams = [upscaled(c, f) for c in cameras(robot, ncam, level, RIG_SCALE.get(spec, 1.0))]
     data = [m for _, m in synthesize(robot, motion, cams, noise=noise, size_mismatch=mismatch, rng=rng)]
     tr = Tracker(robot, cams, **tracker_kw)
     k0 = None if restart is None else (restart if restart >= 0 else frames + restart)
