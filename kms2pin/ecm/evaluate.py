@@ -39,31 +39,8 @@ def evaluate(
     if n == 0:
         which = "the tracked trajectory has" if len(truth) else "the true trajectory has" if len(tracked) else "both trajectories have"
         raise InputDataError(f"nothing to evaluate: {which} no frames")
-    model = robot.model
-    d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)]).reshape(n, model.nv)
-    joints, offsets, kinds = {}, {}, {}
-    for j in robot.joints:
-        dv = d[:, j.idx_v]
-        if j.kind == "revolute":  # a point on the circle: compare modulo 2π, in (-π, π]
-            joints[j.name] = float(np.degrees(np.sqrt(np.mean(((dv + np.pi) % (2 * np.pi) - np.pi) ** 2))))
-        elif j.kind == "spherical":  # the angle of the relative rotation (|log3|)
-            angle = np.linalg.norm(d[:, j.idx_v : j.idx_v + 3], axis=1)
-            joints[j.name] = float(np.degrees(np.sqrt(np.mean(angle**2))))
-        elif j.kind == "prismatic":
-            offsets[j.name] = float(np.sqrt(np.mean(dv**2)))
-        kinds[j.name] = j.kind
-    per_frame, depth, across = np.empty(n), np.empty(n), np.empty(n)
-    scale = 100.0 / robot.height
-    for k in range(n):
-        a = robot.maximal_coordinates(tracked.q[k])[:, :3]
-        b = robot.maximal_coordinates(truth.q[k])[:, :3]
-        per_frame[k] = np.linalg.norm(a - b, axis=1).mean() * scale
-        if camera_centre is not None:
-            rays = b - np.asarray(camera_centre, dtype=float)
-            rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-300)[:, None]
-            along = np.sum((a - b) * rays, axis=1)
-            depth[k] = np.abs(along).mean() * scale
-            across[k] = np.linalg.norm(a - b - along[:, None] * rays, axis=1).mean() * scale
+    joints, offsets, kinds = _joint_errors(robot, tracked, truth, n)
+    per_frame, depth, across = _centre_errors(robot, tracked, truth, n, camera_centre)
     rev = np.array([e for name, e in joints.items() if kinds[name] == "revolute"])
     sph = np.array([e for name, e in joints.items() if kinds[name] == "spherical"])
     m = min(30, n)
@@ -94,3 +71,40 @@ def evaluate(
         "per_frame_centre_error_pct": per_frame.tolist(),
         **extra,
     }
+
+
+def _joint_errors(robot: Robot, tracked: Trajectory, truth: Trajectory, n: int):
+    """Per joint: the RMSE (degrees) of revolute and spherical joints, of prismatic offsets
+    (length units), and each joint's kind, over the first ``n`` frames."""
+    model = robot.model
+    d = np.array([pin.difference(model, truth.q[k], tracked.q[k]) for k in range(n)]).reshape(n, model.nv)
+    joints, offsets, kinds = {}, {}, {}
+    for j in robot.joints:
+        dv = d[:, j.idx_v]
+        if j.kind == "revolute":  # a point on the circle: compare modulo 2π, in (-π, π]
+            joints[j.name] = float(np.degrees(np.sqrt(np.mean(((dv + np.pi) % (2 * np.pi) - np.pi) ** 2))))
+        elif j.kind == "spherical":  # the angle of the relative rotation (|log3|)
+            angle = np.linalg.norm(d[:, j.idx_v : j.idx_v + 3], axis=1)
+            joints[j.name] = float(np.degrees(np.sqrt(np.mean(angle**2))))
+        elif j.kind == "prismatic":
+            offsets[j.name] = float(np.sqrt(np.mean(dv**2)))
+        kinds[j.name] = j.kind
+    return joints, offsets, kinds
+
+
+def _centre_errors(robot: Robot, tracked: Trajectory, truth: Trajectory, n: int, camera_centre):
+    """Per frame: the mean body-centre error (% of the height), and its parts along and
+    across the camera's rays (when a camera centre is given)."""
+    per_frame, depth, across = np.empty(n), np.empty(n), np.empty(n)
+    scale = 100.0 / robot.height
+    for k in range(n):
+        a = robot.maximal_coordinates(tracked.q[k])[:, :3]
+        b = robot.maximal_coordinates(truth.q[k])[:, :3]
+        per_frame[k] = np.linalg.norm(a - b, axis=1).mean() * scale
+        if camera_centre is not None:
+            rays = b - np.asarray(camera_centre, dtype=float)
+            rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-300)[:, None]
+            along = np.sum((a - b) * rays, axis=1)
+            depth[k] = np.abs(along).mean() * scale
+            across[k] = np.linalg.norm(a - b - along[:, None] * rays, axis=1).mean() * scale
+    return per_frame, depth, across
