@@ -27,38 +27,42 @@ class Bvh:
     End Site offsets; ``frames``: (T, channels); ``frame_time``."""
 
     def __init__(self, text: str):
-        self.joints: dict[str, tuple] = {}
+        self.joints: dict[str, list] = {}
         self.ends: dict[str, list] = {}
-        stack: list[str | None] = []
         head, motion = text.split("MOTION", 1)
-        lines = iter(head.replace("{", "\n{\n").replace("}", "\n}\n").splitlines() + ["MOTION"]
-                     + motion.splitlines()[1:])
+        words = head.replace("{", " { ").replace("}", " } ").split()[1:]  # after HIERARCHY
+        stack: list = []
         current = None
-        for line in lines:
-            words = line.split()
-            if not words:
-                continue
-            key = words[0]
-            if key in ("ROOT", "JOINT"):
-                current = line.split(None, 1)[1].strip()
+        k = 0
+        while k < len(words):
+            word = words[k]
+            if word in ("ROOT", "JOINT"):  # the name: every word up to the brace
+                end = words.index("{", k)
+                current = " ".join(words[k + 1 : end])
                 self.joints[current] = [stack[-1] if stack else None, None, ()]
                 self.ends[current] = []
-            elif key == "End":
-                current = ("end", stack[-1])
-            elif key == "{":
+                k = end
+                continue
+            if word == "End":  # End Site
+                current, k = ("end", stack[-1]), k + 2
+                continue
+            if word == "{":
                 stack.append(current)
-            elif key == "}":
+            elif word == "}":
                 stack.pop()
-            elif key == "OFFSET":
-                offset = np.array([float(x) for x in words[1:4]])
+            elif word == "OFFSET":
+                offset = np.array([float(x) for x in words[k + 1 : k + 4]])
                 if isinstance(current, tuple):
                     self.ends[current[1]].append(offset)
                 else:
                     self.joints[current][1] = offset
-            elif key == "CHANNELS":
-                self.joints[current][2] = tuple(words[2:])
-            elif key == "MOTION":
-                break
+                k += 3
+            elif word == "CHANNELS":
+                n = int(words[k + 1])
+                self.joints[current][2] = tuple(words[k + 2 : k + 2 + n])
+                k += 1 + n
+            k += 1
+        lines = iter(motion.splitlines()[1:])
         self.frames_declared = int(next(lines).split(":")[1])
         self.frame_time = float(next(lines).split(":")[1])
         self.frames = np.array([[float(x) for x in line.split()] for line in lines if line.strip()])

@@ -4,6 +4,7 @@ trajectory, checked against an independent BVH forward kinematics (tests/_bvh.py
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -51,14 +52,14 @@ def _bone_end_errors(robot, q, bvh: Bvh, scale: float, turn=None, renamed=None) 
         points, _, ends = bvh.world(k, scale, turn)
         worst, seen = 0.0, set()
         for (body, name), x in _model_points(robot, q[k]).items():
-            body, name = renamed.get(body, body), renamed.get(name, name)
+            body = renamed.get(body, body)
             if name == "joint":
                 ref, key = points[body], body
-            elif name.startswith("end"):
-                n = int(name[4:] or 1) if name != "end" else 1
+            elif name not in renamed and re.fullmatch(r"end(_\d+)?", name):  # End Sites: end, end_2, ...
+                n = int(name[4:]) if name != "end" else 1
                 ref, key = ends[body][n - 1], (body, n)
             else:
-                ref, key = points[name], name
+                ref, key = points[renamed.get(name, name)], renamed.get(name, name)
             worst = max(worst, float(np.linalg.norm(x - ref)))
             seen.add(key)
         assert set(points) <= seen, f"BVH joints without a point in the model: {set(points) - seen}"
@@ -365,3 +366,35 @@ def test_body_sizes_follow_the_bones_and_the_anthropometric_table(tmp_path):
         np.testing.assert_allclose(robot.outer(body), 1.2 * inner, atol=1e-4)
         R = robot.body_pose(robot.q_rest, body).rotation  # the long axis lies along the bone
         assert abs(R[:, k] @ bone) / np.linalg.norm(bone) > 1 - 1e-9
+
+
+def test_joint_names_that_are_not_names_of_the_language_are_made_so(tmp_path):
+    """Spaces and dashes become '_' (a clash takes '_2'), a keyword, 'world' or a leading
+    digit is escaped, and 'joint', 'end' and 'root' (whose joint would be a free root's
+    root_joint) are renamed: the model compiles and every bone end is in place."""
+    hierarchy = """
+ROOT root
+{
+    OFFSET 0 0 0
+    CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+    JOINT a b
+    {
+        OFFSET 0 1 0
+        CHANNELS 3 Zrotation Yrotation Xrotation
+        JOINT a-b { OFFSET 0 1 0 CHANNELS 3 Zrotation Yrotation Xrotation End Site { OFFSET 0 1 0 } }
+    }
+    JOINT double { OFFSET 1 0 0 CHANNELS 3 Zrotation Yrotation Xrotation
+        JOINT 1st { OFFSET 1 0 0 CHANNELS 3 Zrotation Yrotation Xrotation
+            JOINT world { OFFSET 1 0 0 CHANNELS 3 Zrotation Yrotation Xrotation
+                JOINT joint { OFFSET 0 -1 0 CHANNELS 3 Zrotation Yrotation Xrotation
+                    JOINT end { OFFSET 0 -1 0 CHANNELS 3 Zrotation Yrotation Xrotation End Site { OFFSET 0 -1 0 } } } } } }
+}
+"""
+    rows = np.random.default_rng(2).uniform(-90, 90, (5, 27))  # the root and 7 joints
+    bvh_path = _write(tmp_path / "names.bvh", hierarchy, rows)
+    robot, q, _ = _import(tmp_path, bvh_path, "--up", "y")
+    renamed = {"root_": "root", "a_b": "a b", "a_b_2": "a-b", "double_": "double", "_1st": "1st", "world_": "world",
+               "joint_2": "joint", "end_2": "end"}
+    assert set(robot.bodies) == set(renamed)
+    bvh = Bvh.read(bvh_path)
+    assert _bone_end_errors(robot, q, bvh, 1.0, renamed=renamed).max() < 1e-6 * bvh.rest_height()

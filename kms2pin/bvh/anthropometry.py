@@ -29,6 +29,7 @@ class Segment:
 
 SEGMENTS = {s.name: s for s in (
     Segment("pelvis", (0.095, 0.06), 0.07),
+    Segment("pelvis side", (0.05, 0.06), 0.05),
     Segment("trunk", (0.095, 0.065), 0.08),
     Segment("neck", (0.035, 0.035), 0.035),
     Segment("head", (0.045, 0.055), 0.065),
@@ -54,7 +55,8 @@ _WORDS = (
     ("finger", ("finger", "thumb", "index", "middle", "ring", "pinky", "little")),
     ("toes", ("toe",)),
     ("foot", ("foot", "ankle")),
-    ("pelvis", ("hipjoint", "pelvis", "hips")),
+    ("pelvis side", ("hipjoint",)),
+    ("pelvis", ("pelvis", "hips")),
     ("thigh", ("upleg", "thigh", "femur", "hip")),
     ("shin", ("knee", "shin", "calf", "tibia", "lowleg", "leg")),
     ("forearm", ("forearm", "lowarm", "elbow", "ulna")),

@@ -136,14 +136,17 @@ def import_bvh(bvh: BvhFile, options: ImportOptions = ImportOptions()) -> Import
     points = _points(sk, size)
     links, kept, merged, skipped = _plan(sk, points, size)
     _check_hinges(sk, options.hinges, links, merged)
-    names = _unique([identifier(j.name) for j in bvh.joints], {"joint", "end"})  # the bvecs' own names
+    # 'joint' and 'end' name bvecs of every body, and a body 'root' would have the joint 'root_joint', a free root's name
+    names = _unique([identifier(j.name) + ("_" if identifier(j.name) == "root" else "") for j in bvh.joints],
+                    {"joint", "end"})
+    children = _children(sk)
     bodies: dict[int, _Body] = {}
     for j in kept:  # parents first: a revolute link's child takes its axes from its parent's
         link = links[j]
         if link.hinge:
             link.axis = _principal_axis(sk, link, bodies[link.parent].axes)
         reference = bodies[link.parent].axes if link.kind == "revolute" else np.eye(3)
-        bodies[j] = _geometry(sk, j, points, names[j], size, reference, link.axis)
+        bodies[j] = _geometry(sk, j, children[j], points, names[j], size, reference, link.axis)
     _orients(sk, bodies, links, points, names)
     _check_sizes(bodies, points, options.scale)
     text = _text(bvh, sk, options, bodies, links, names, (merged, skipped), size)
@@ -205,13 +208,12 @@ def _plan(sk: Skeleton, points, size: float):
     return links, kept, merged, skipped
 
 
-def _geometry(sk: Skeleton, j: int, points, name: str, size: float, reference: np.ndarray,
+def _geometry(sk: Skeleton, j: int, children: list[int], points, name: str, size: float, reference: np.ndarray,
               hinge: np.ndarray | None) -> _Body:
     """Body ``j``: its axes, centre and inner semi-axes (module docstring).  The axes are
     ``reference`` (F_J's, or a revolute link's parent body's) turned to lay the one nearest
     the bone along it: by the least rotation, or about an axis across ``hinge`` (the link's
     axis, in F_J) so that the link's R_align turns about its axis too."""
-    children = [k for k, b in enumerate(sk.bvh.joints) if b.parent == j]
     pts = [points[k] for k in children] + list(sk.ends[j])
     far = max((float(np.linalg.norm(p)) for p in pts), default=0.0)
     mean = np.mean(pts, axis=0) if pts else np.zeros(3)
@@ -365,7 +367,7 @@ def _text(bvh: BvhFile, sk: Skeleton, options: ImportOptions, bodies: dict, link
     up, why = choose_up(bvh, options.up)
     lines = [
         f"// {options.name}.kms: the skeleton of {os.path.basename(bvh.path)}, imported by kms2pin (docs/bvh.md).",
-        f"// {len(bvh.joints)} BVH joints -> {len(bodies)} bodies, one a bone; bones of zero length merged into their "
+        f"// {len(bvh.joints)} BVH joints -> {len(bodies)} bodies, one per bone; bones of zero length merged into their "
         f"children: {', '.join(merged) or 'none'}; left out: {', '.join(skipped) or 'none'}.",
         f"// Metres ({options.scale:g} m per file unit); +y up (the file is {up.upper()}-up: {why}).",
         "// Rest pose: the file's offsets (every BVH rotation zero), where every joint coordinate is 0; the root's",
@@ -379,8 +381,9 @@ def _text(bvh: BvhFile, sk: Skeleton, options: ImportOptions, bodies: dict, link
     ]
     for body in bodies.values():
         reach = max(float(np.linalg.norm(pos)) for pos, _ in body.bvecs.values())
+        bone = f"its bone {reach:.3g} m long" if reach > ZERO * size else "no bone: its children start at its joint"
         what = f"{body.segment}, " if body.segment else ""
-        lines.append(f"    ellipsoidBody {body.name} {{  // {what}its points up to {reach:.3g} m from its joint")
+        lines.append(f"    ellipsoidBody {body.name} {{  // {what}{bone}")
         lines.append(f"        innerLam({_vec(body.inner, 4)});")
         lines.append(f"        outerLam({_vec(OUTER * body.inner, 4)});")
         for name, (pos, orient) in body.bvecs.items():

@@ -16,7 +16,7 @@ The format (M. Meredith and S. Maddock, *Motion capture file formats explained*,
     5.23 16.9 -33.9 -5.40 9.81 ...  one line a frame: every joint's channels, in the order
                                     the CHANNELS lines come, angles in degrees
 
-A joint name is the rest of its ``ROOT``/``JOINT`` line (it may hold spaces).  Keywords
+A joint name is the rest of its ``ROOT``/``JOINT`` line up to a ``{`` (it may hold spaces).  Keywords
 are read without regard to case.  Every mistake is a :class:`~kms2pin.errors.BvhError`
 located at ``file:line:col``.  What the channels mean is :mod:`kms2pin.bvh.motion`'s.
 """
@@ -180,10 +180,9 @@ class _Hierarchy:
 
     def open_joint(self, token, parent: int | None) -> dict:
         line = self.lines[token[0] - 1]
-        name = line[token[1] - 1 + len(token[2]):].strip()
+        name = line[token[1] - 1 + len(token[2]):].split("{", 1)[0].strip()
         while self.at < len(self.tokens) and self.tokens[self.at][0] == token[0] and self.tokens[self.at][2] != "{":
             self.at += 1  # the words of the name
-        name = name.removesuffix("{").rstrip()
         kind = "ROOT" if parent is None else "JOINT"
         if not name:
             raise self.error(token, f"{kind} needs a name")
