@@ -9,6 +9,7 @@ viewer (:mod:`kms2pin.viewer`).
 from __future__ import annotations
 
 from .errors import (
+    BvhError,
     CameraError,
     ExportError,
     InputDataError,
@@ -29,6 +30,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Body",
     "BoundVector",
+    "BvhError",
     "CameraError",
     "ExportError",
     "InputDataError",

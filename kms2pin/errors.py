@@ -114,6 +114,11 @@ class InputDataError(Kms2pinError):
     """Images, masks or videos cannot be used (file and frame in the message)."""
 
 
+class BvhError(Kms2pinError):
+    """A BVH motion-capture file cannot be read (``file:line:col`` in the message), its
+    skeleton cannot be modelled, or a model cannot be written as BVH."""
+
+
 def did_you_mean(name: str, candidates: Iterable[str]) -> str:
     """Return `` (did you mean 'x'?)`` for the closest candidate, or ``""``."""
     close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)

@@ -208,7 +208,7 @@ class Robot:
         for j in self.joints:
             block = rows[:, j.idx_q : j.idx_q + j.nq]
             if j.kind == "spherical":
-                out[:, c : c + 3] = [np.degrees(xyz_angles(_quaternion_matrix(x))) for x in block]
+                out[:, c : c + 3] = np.reshape([np.degrees(xyz_angles(_quaternion_matrix(x))) for x in block], (-1, 3))
             elif j.kind == "revolute":
                 out[:, c] = np.degrees(block[:, 0])
             else:
@@ -227,7 +227,8 @@ class Robot:
         for j in self.joints:
             block = rows[:, k : k + len(j.names)]
             if j.kind == "spherical":
-                q[:, j.idx_q : j.idx_q + 4] = [pin.Quaternion(xyz_rotation(np.radians(a))).coeffs() for a in block]
+                q[:, j.idx_q : j.idx_q + 4] = np.reshape(
+                    [pin.Quaternion(xyz_rotation(np.radians(a))).coeffs() for a in block], (-1, 4))
             elif j.kind == "revolute":
                 q[:, j.idx_q] = np.radians(block[:, 0])
             else:

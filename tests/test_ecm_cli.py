@@ -369,8 +369,8 @@ def test_a_finished_track_is_complete_and_a_rerun_replaces_the_earlier_outputs(t
     assert json.loads((out / "meta.json").read_text())["complete"] is True
     capsys.readouterr()
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
-    # trajectory.csv, poses.npz, overlay.mp4 and animation.html
-    assert f"note: {out}: removed 4 file(s) of an earlier run" in capsys.readouterr().err
+    # trajectory.csv, poses.npz, overlay.mp4, animation.html and motion.bvh
+    assert f"note: {out}: removed 5 file(s) of an earlier run" in capsys.readouterr().err
     assert not (out / "overlay.mp4").exists()
     assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 3
 

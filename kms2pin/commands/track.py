@@ -9,7 +9,9 @@ writes OUT/joint_angles.png.  Writes to OUT:
 trajectory.csv (joint angles in degrees, one row per frame, appended as it
 goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
-is available), model.kms, meta.json and cameras.json (for `kms2pin evaluate`).
+is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; unless
+the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
+`kms2pin evaluate`).
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
@@ -32,10 +34,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..bvh import to_bvh
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
-from ..errors import InputDataError, Kms2pinError
+from ..errors import BvhError, InputDataError, Kms2pinError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
@@ -45,7 +48,8 @@ from ._tracking import add_tracker_arguments, tracker_options
 from .segment import add_lighting_arguments
 
 NAME = "track"
-HELP = "track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4, animation.html"
+HELP = ("track a model through silhouette masks (ECM); writes trajectory.csv, poses.npz, overlay.mp4, animation.html, "
+        "motion.bvh")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -86,7 +90,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
     return cameras, names
 
 
-_OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png")
+_OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -310,7 +314,8 @@ def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scale
 
 
 def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, meta: dict) -> None:
-    """joint_angles.png (video), animation.html and meta.json complete."""
+    """joint_angles.png (video), animation.html, motion.bvh (if the model can be written as BVH)
+    and meta.json complete."""
     qs = np.array([r.q for r in results])
     if args.video:
         from ..video.track_video import plot_joint_angles
@@ -330,6 +335,16 @@ def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, me
                 write_animation_html(robot, qs, args.fps, tmp)
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
+    try:
+        text = to_bvh(robot, qs, args.fps)
+    except BvhError as err:
+        print(f"note: motion.bvh skipped ({err})", file=sys.stderr)
+    else:
+        try:
+            with replaced(out / "motion.bvh") as tmp:
+                tmp.write_text(text)
+        except OSError as err:
+            raise Kms2pinError(f"cannot write to {out}: {err.strerror or err}") from None
     meta["complete"] = True
     try:
         write_files_atomically({out / "meta.json": json.dumps(meta, indent=2) + "\n"})

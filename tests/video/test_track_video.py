@@ -315,7 +315,7 @@ def test_a_shorter_video_into_the_same_folder_leaves_only_its_own_masks(clip16, 
     out = tmp_path / "o"
     for args in (_write_clip(tmp_path / "long", v.frames, cam), _write_clip(tmp_path / "short", v.frames[:12], cam)):
         assert main([*args, "-o", str(out)]) == 0, capsys.readouterr().err
-    # frames 12-15's masks, trajectory.csv, poses.npz, animation.html and joint_angles.png
-    assert f"note: {out}: removed 8 file(s) of an earlier run" in capsys.readouterr().err
+    # frames 12-15's masks, trajectory.csv, poses.npz, animation.html, joint_angles.png and motion.bvh
+    assert f"note: {out}: removed 9 file(s) of an earlier run" in capsys.readouterr().err
     assert sorted(p.name for p in (out / "masks" / "cam0").iterdir()) == [f"frame_{k:05d}.png" for k in range(12)]
     assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 12
