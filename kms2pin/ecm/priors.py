@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["DepthPrior", "RestPrior", "UprightPrior"]
+__all__ = ["DepthPrior", "RestPrior", "TwistPrior", "UprightPrior"]
 
 
 @dataclass(frozen=True)
@@ -102,3 +102,74 @@ class RestPrior:
         A[self.dofs, self.dofs] += k
         g[self.dofs] += k * d
         return 0.5 * k * float(d @ d)
+
+
+@dataclass(frozen=True)
+class TwistPrior:
+    """Holds each listed spherical joint's twist about its child's long axis near rest: a
+    body of revolution (an upper arm, a thigh) shows no twist in a silhouette, and only
+    the body below it fixes it, barely when that joint is nearly straight.
+
+    With ``Δ = R_restᵀ R = (w, v)`` the joint's rotation relative to rest (a unit
+    quaternion, in the joint's axes) and ``a`` the child's long axis in those axes, the
+    twist (swing-twist decomposition) is ``θ = 2 atan2(v·a, w)``; energy ½ k Σ θ².  For
+    ``R ← R Exp(ω)`` (Pinocchio's spherical joint velocity, local), ``dθ/dω = (w² a +
+    w a×v + (v·a) v) / (w² + (v·a)²)``.  Stiffness: ``weight`` times the joints' mean
+    stiffness (as :class:`RestPrior`).
+
+    ``joints``: (q index, v index, unit axis a, rest quaternion (x, y, z, w)) per joint.
+    """
+
+    weight: float
+    joints: Sequence[tuple[int, int, np.ndarray, np.ndarray]]
+    dofs: np.ndarray
+
+    @classmethod
+    def of(cls, weight: float, robot, dofs: np.ndarray, roundness: float = 0.25) -> TwistPrior | None:
+        """The prior on ``robot``'s spherical joints whose child's inner ellipsoid is nearly
+        a body of revolution about its longest axis (the other two semi-axes within
+        ``roundness`` of each other), or None if there are none."""
+        joints = []
+        for j in robot.joints:
+            if j.kind != "spherical":
+                continue
+            L = np.asarray(robot.inner(j.spec.child), dtype=float)
+            k = int(np.argmax(L))
+            other = np.delete(L, k)
+            if other.max() > (1.0 + roundness) * other.min() or L[k] < 1.5 * other.max():
+                continue
+            R_align = robot.model.frames[robot.model.getFrameId(j.spec.child, pin.FrameType.BODY)].placement.rotation
+            axis = R_align[:, k]  # the long axis in the joint's axes
+            joints.append((j.idx_q, j.idx_v, axis, robot.q_rest[j.idx_q : j.idx_q + 4].copy()))
+        return cls(weight, joints, dofs) if joints else None
+
+    def stiffness(self, A: np.ndarray) -> float:
+        return self.weight * float(np.mean(A[self.dofs, self.dofs]))
+
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
+        iq, iv, a, rest = self._arrays
+        x = q[iq[:, None] + np.arange(4)]  # (n, 4) x y z w
+        rv, rw, xv, xw = rest[:, :3], rest[:, 3], x[:, :3], x[:, 3]
+        w = rw * xw + np.einsum("ij,ij->i", rv, xv)  # conj(rest) * x
+        v = rw[:, None] * xv - xw[:, None] * rv - np.cross(rv, xv)
+        flip = w < 0.0  # the same rotation: the twist in (-pi, pi]
+        w, v = np.where(flip, -w, w), np.where(flip[:, None], -v, v)
+        norm = np.sqrt(w * w + np.einsum("ij,ij->i", v, v))  # q need not be exactly unit
+        w, v = w / norm, v / norm[:, None]
+        t = np.einsum("ij,ij->i", v, a)
+        theta = 2.0 * np.arctan2(t, w)
+        den = np.maximum(w * w + t * t, 1e-300)
+        J = ((w * w)[:, None] * a + w[:, None] * np.cross(a, v) + t[:, None] * v) / den[:, None]
+        for m, col in enumerate(iv):
+            A[col : col + 3, col : col + 3] += k * np.outer(J[m], J[m])
+            g[col : col + 3] += k * J[m] * theta[m]
+        return 0.5 * k * float(theta @ theta)
+
+    @property
+    def _arrays(self):
+        arrays = self.__dict__.get("_cached")
+        if arrays is None:
+            arrays = (np.array([j[0] for j in self.joints]), np.array([j[1] for j in self.joints]),
+                      np.array([j[2] for j in self.joints]), np.array([j[3] for j in self.joints]))
+            object.__setattr__(self, "_cached", arrays)
+        return arrays

@@ -36,7 +36,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
-from .priors import RestPrior, UprightPrior
+from .priors import RestPrior, TwistPrior, UprightPrior
 from .silhouette import visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
@@ -84,6 +84,9 @@ class Tracker:
             priors.append(UprightPrior.at(opts.priors.upright, opts.priors.up, self.q[:7]))
         if opts.priors.rest_prior > 0 and joint_dofs.size:
             priors.append(RestPrior(opts.priors.rest_prior, robot.model, robot.q_rest, joint_dofs))
+        twist = TwistPrior.of(opts.priors.twist_prior, robot, joint_dofs) if opts.priors.twist_prior > 0 else None
+        if twist is not None:
+            priors.append(twist)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
         hyp, lim = opts.hypotheses, opts.limbs

@@ -202,3 +202,42 @@ def test_upright_prior_tracks_a_turn_that_one_camera_loses():
     # the truth's heading turns by 180 degrees over the segment; the track's ends with it
     Ra, Rb = (pin.XYZQUATToSE3(x[:7]).rotation for x in (res[-1].q, seg[-1]))
     assert np.degrees(np.linalg.norm(pin.log3(Ra.T @ Rb))) < 10.0
+
+
+def test_twist_prior_is_the_gradient_of_its_energy_and_leaves_the_swing_free():
+    """The twist prior on the human's round limbs (upper arms, thighs): its gradient is
+    that of E = k/2 sum theta^2 (finite differences with pin.integrate), theta the twist
+    of each joint relative to rest about its child's long axis; a swing (a turn about an
+    axis across the limb) leaves its energy at 0; the thesis's models have none."""
+    from kms2pin.ecm.priors import TwistPrior
+
+    human = load(DIR / "human.kms", root="free")
+    nv = human.model.nv
+    prior = TwistPrior.of(1.0, human, np.arange(6, nv))
+    names = {human.model.names[human.model.getJointId(j.name)] for j in human.joints if j.idx_q in
+             {iq for iq, *_ in prior.joints}}
+    assert {"leftUpperArm_shoulder", "rightUpperArm_shoulder", "leftThigh_hip", "rightThigh_hip"} <= names
+    assert "torso_waist" not in names  # a wide trunk shows its twist
+    k = 0.8
+
+    def energy(q):
+        A, g = np.zeros((nv, nv)), np.zeros(nv)
+        return prior.add(A, g, q, human.data, k)
+
+    rng = np.random.default_rng(2)
+    q = human.random_configuration(rng, 60)
+    A, g = np.zeros((nv, nv)), np.zeros(nv)
+    e0 = prior.add(A, g, q, human.data, k)
+    assert e0 > 0
+    eps = 1e-6
+    fd = [(energy(pin.integrate(human.model, q, eps * e)) - energy(pin.integrate(human.model, q, -eps * e))) / (2 * eps)
+          for e in np.eye(nv)]
+    np.testing.assert_allclose(g, fd, atol=1e-6)
+    # a swing of the left upper arm about the shoulder's axis (across the arm) has no twist
+    arm = next(j for j in human.joints if j.name == "leftUpperArm_shoulder")
+    swung = human.q_rest.copy()
+    x = human.q_rest[arm.idx_q : arm.idx_q + 4]
+    R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.array([0.7, 0.0, 0.0]))
+    swung[arm.idx_q : arm.idx_q + 4] = pin.Quaternion(R).coeffs()
+    assert energy(swung) == pytest.approx(0.0, abs=1e-20)
+    assert TwistPrior.of(1.0, load(DIR / "fullbody.kms", root="free"), np.arange(6, 23)) is None
