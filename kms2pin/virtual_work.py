@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from .closures import column_order, least_norm, project
 from .errors import RobotError, TargetError, did_you_mean
 from .native import kernels
 from .robot import Robot
@@ -179,6 +180,8 @@ class _Structure:
             # (q indices, v indices, lower, upper, and the values at or below / above which a
             # coordinate counts as at its limit)
             self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
+        # loop closures: the column order of their curvature (kms2pin.closures.column_order)
+        self.order = column_order(model) if robot.closures else None
 
 
 _STRUCTURES: weakref.WeakKeyDictionary[Robot, _Structure] = weakref.WeakKeyDictionary()
@@ -277,7 +280,10 @@ def static_update(
             quaternion), with the same message.
 
     Spherical joints (and a free root) are integrated on their manifold
-    (``pin.integrate``).  Joint limits from the spec (``revolute(a, b, angle, lower,
+    (``pin.integrate``).  With loop closures (``robot.closures``) the start is projected
+    onto them and the equilibrium is sought on the closed configurations (the thesis's
+    coordinate partitioning, §2.3.2: :func:`_closed_static_update`); ``residual`` is then
+    ||B^T Q|| along them.  Joint limits from the spec (``revolute(a, b, angle, lower,
     upper)`` and ``prismatic(a, b, offset, lower, upper)``, not in the thesis) are kept: the start is clipped into them, every step is projected onto
     them, and a joint held at a limit by a force pushing it outwards drops out of the
     Newton system (projected Levenberg-Marquardt); the equilibrium is then B^T Q = 0
@@ -291,6 +297,8 @@ def static_update(
     tgt, mask = target_array(robot, targets)
     k = stiffness_array(robot, stiffness, mask)
     ev = _Evaluator(robot, tgt, k)
+    if robot.closures:
+        return _closed_static_update(robot, q_in, ev, max_iter, tol)
     nv = robot.model.nv
     step = np.empty(nv)
     bounds = ev.s.limits
@@ -343,6 +351,104 @@ def static_update(
     rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
     return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
+
+
+def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_iter: int,
+                          tol: float) -> StaticUpdateResult:
+    """:func:`static_update` on the configurations that close every loop: Levenberg-Marquardt
+    on the Newton system reduced to the closures' null space (B = N, :func:`_closed_system`;
+    the Hessian with the constraints' curvature Σ λ ∇²c at the spring forces'
+    multipliers), each step brought back onto the closures by Gauss-Newton.  Joints at a
+    limit and pushed outwards are held (rows of A)."""
+    held = np.zeros(robot.nv, dtype=bool)
+    q = _closed_step(robot, q_in, np.zeros(robot.nv), held, ev.s.limits is not None)
+    if q is None:
+        raise TargetError(f"the loops of '{robot.system.name}' cannot be closed from the start configuration q")
+    lin = ev.linearize_full(q)
+    system = _closed_system(robot, ev, q, lin)
+    lam, it, converged, message = 1e-8, 0, False, "iteration limit reached"
+    while True:
+        H, g, N, held, gsq, second = system
+        if gsq <= tol * tol:
+            converged, message = True, "||B^T Q|| below tolerance"
+            break
+        if it >= max_iter:
+            break
+        it += 1
+        scale = max(float(H.diagonal().max(initial=0.0)), 1e-12)
+        z = np.empty(len(g))
+        accepted = False
+        for _ in range(40):
+            if kernels.solve_shifted(H, g, lam * scale, z) and z @ g < 0:
+                q_try = _closed_step(robot, q, second(N @ z), held, ev.s.limits is not None)
+                if q_try is not None:
+                    lin_try = ev.linearize_full(q_try)
+                    if lin_try[0] <= lin[0] + 1e-15 * max(1.0, lin[0]):
+                        accepted = True
+                        lam = max(lam * 0.1, 1e-12)
+                        break
+            lam = max(lam * 10.0, 1e-8)
+        if not accepted:
+            message = "no step decreases the energy further"
+            break
+        q, lin = q_try, lin_try
+        system = _closed_system(robot, ev, q, lin)
+    rev = ev.s.unlimited_revolute_q
+    q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
+    return StaticUpdateResult(q, converged, it, math.sqrt(system[4]), lin[0], ev.forces(lin[3], lin[4]), message)
+
+
+def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, limited: bool) -> np.ndarray | None:
+    """``pin.integrate(q, dq)`` (clipped into the joint limits if ``limited``) brought back
+    onto the closures by Gauss-Newton (:func:`kms2pin.closures.project`, to 1e-3 of their
+    tolerance), or None if they cannot be closed there."""
+    model, data = robot.model, robot.data
+    q_new = pin.integrate(model, q, dq)
+    if limited:
+        q_new = robot.clamp(q_new)
+    q_new, r = project(robot._closures, model, data, q_new, robot.lower_limits, robot.upper_limits, held,
+                       1e-3 * robot._closure_tol)
+    return q_new if np.abs(r).max(initial=0.0) <= 1e-3 * robot._closure_tol else None
+
+
+def _closed_system(robot: Robot, ev: _Evaluator, q: np.ndarray, lin) -> tuple:
+    """The Newton system at a closed ``q`` reduced to the closures' null space (the thesis's
+    coordinate partitioning, §2.3.2, with an orthonormal basis N for B_di): (Nᵀ (H + Σ λ
+    ∇²c) N, Nᵀ g, N, the held columns, |Nᵀ g|²), from :meth:`_Evaluator.linearize_full` at
+    ``q`` (which left ``robot.data`` there; ``kernels.nullspace_system``).  λ and the held
+    limits come from the least-squares multipliers of g + Aᵀ μ = 0 over the closures' rows
+    and the joints at a limit (held where μ pushes outwards)."""
+    model, data, C = robot.model, robot.data, robot._closures
+    _, grad, H = lin[:3]
+    _, Jc, curvature = C.system(model, data, 2, ev.s.order)
+    nv = model.nv
+    held = np.zeros(nv, dtype=bool)
+    bounds = ev.s.limits
+    if bounds is not None:
+        iq, iv, _, _, lo_at, hi_at = bounds
+        low, high = q[iq] <= lo_at, q[iq] >= hi_at
+        if (low | high).any():  # a limit holds where its multiplier pushes outwards
+            at = iv[low | high]
+            mu = _reduce(np.vstack([Jc, np.eye(nv)[at]]), grad, H, curvature)[4][len(Jc):]
+            held[at[np.where(low[low | high], mu < 0, mu > 0)]] = True
+    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H, curvature)
+    Jc[:, held] = 0.0
+
+    def second(dq: np.ndarray) -> np.ndarray:
+        """``dq`` (along the closures) plus its second-order correction: the least-norm δ with
+        Jc δ = -½ dqᵀ ∇²c dq, so that the closures hold to third order at q ⊕ (dq + δ)."""
+        v = 0.5 * (curvature.reshape(len(Jc), -1) @ np.outer(dq, dq).ravel())
+        return dq + least_norm(Jc, v)
+
+    return Hr[:k, :k], gr[:k], N[:, :k], held, float(gr @ gr), second
+
+
+def _reduce(A: np.ndarray, grad: np.ndarray, H: np.ndarray, curvature: np.ndarray):
+    """(k, N, Hr, gr, λ) of ``kernels.nullspace_system`` for the constraints A dq = 0."""
+    nv = len(grad)
+    N, Hr, gr, lam = np.empty((nv, nv)), np.empty((nv, nv)), np.empty(nv), np.empty(len(A))
+    rank = kernels.nullspace_system(A, grad, H, curvature, N, Hr, gr, lam)
+    return nv - rank, N, Hr, gr, lam
 
 
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
