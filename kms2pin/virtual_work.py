@@ -365,7 +365,7 @@ def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_it
     if q is None:
         raise TargetError(f"the loops of '{robot.system.name}' cannot be closed from the start configuration q")
     lin = ev.linearize_full(q)
-    system = _closed_system(robot, ev, q, lin)
+    system = _closed_system(robot, ev.s, q, lin[1], lin[2])
     lam, it, converged, message = 1e-8, 0, False, "iteration limit reached"
     while True:
         H, g, N, held, gsq, second = system
@@ -392,7 +392,7 @@ def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_it
             message = "no step decreases the energy further"
             break
         q, lin = q_try, lin_try
-        system = _closed_system(robot, ev, q, lin)
+        system = _closed_system(robot, ev.s, q, lin[1], lin[2])
     rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
     return StaticUpdateResult(q, converged, it, math.sqrt(system[4]), lin[0], ev.forces(lin[3], lin[4]), message)
@@ -411,19 +411,21 @@ def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, 
     return q_new if np.abs(r).max(initial=0.0) <= 1e-3 * robot._closure_tol else None
 
 
-def _closed_system(robot: Robot, ev: _Evaluator, q: np.ndarray, lin) -> tuple:
+def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray, H: np.ndarray,
+                   newton: bool = True) -> tuple:
     """The Newton system at a closed ``q`` reduced to the closures' null space (the thesis's
     coordinate partitioning, §2.3.2, with an orthonormal basis N for B_di): (Nᵀ (H + Σ λ
-    ∇²c) N, Nᵀ g, N, the held columns, |Nᵀ g|²), from :meth:`_Evaluator.linearize_full` at
-    ``q`` (which left ``robot.data`` there; ``kernels.nullspace_system``).  λ and the held
+    ∇²c) N, Nᵀ g, N, the held columns, |Nᵀ g|², the second-order correction of a step) from
+    the gradient ``grad`` and Newton matrix ``H`` at ``q`` (``robot.data`` after
+    ``pin.computeJointJacobians`` there; ``kernels.nullspace_system``).  ``newton=False``:
+    Gauss-Newton, Nᵀ H N without the curvature (positive semi-definite with H).  λ and the held
     limits come from the least-squares multipliers of g + Aᵀ μ = 0 over the closures' rows
     and the joints at a limit (held where μ pushes outwards)."""
     model, data, C = robot.model, robot.data, robot._closures
-    _, grad, H = lin[:3]
-    _, Jc, curvature = C.system(model, data, 2, ev.s.order)
+    _, Jc, curvature = C.system(model, data, 2, s.order)
     nv = model.nv
     held = np.zeros(nv, dtype=bool)
-    bounds = ev.s.limits
+    bounds = s.limits
     if bounds is not None:
         iq, iv, _, _, lo_at, hi_at = bounds
         low, high = q[iq] <= lo_at, q[iq] >= hi_at
@@ -431,7 +433,8 @@ def _closed_system(robot: Robot, ev: _Evaluator, q: np.ndarray, lin) -> tuple:
             at = iv[low | high]
             mu = _reduce(np.vstack([Jc, np.eye(nv)[at]]), grad, H, curvature)[4][len(Jc):]
             held[at[np.where(low[low | high], mu < 0, mu > 0)]] = True
-    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H, curvature)
+    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H,
+                              curvature if newton else curvature[:0])
     Jc[:, held] = 0.0
 
     def second(dq: np.ndarray) -> np.ndarray:
@@ -535,7 +538,8 @@ def pose_spring_update(
     :data:`BACKTRACK` times, and if none lowers it the update stops there.  Joints at
     a spec limit that the step pushes further are held there and the step is solved
     for the others (projected Gauss-Newton's active set); every step is clipped into
-    the limits.
+    the limits.  With loop closures the start is projected onto them and every step is
+    taken along them (:func:`_closed_pose_spring_update`).
 
     Args:
         robot: the loaded system.
@@ -570,6 +574,8 @@ def pose_spring_update(
             energy += t.add(A, g, q, data, k)
         return A, g, energy
 
+    if robot.closures:
+        return _closed_pose_spring_update(robot, q, springs, iterations)
     A, g, energy = springs(q)
     for _ in range(iterations):
         dq = _newton_step(A, g)
@@ -590,6 +596,38 @@ def pose_spring_update(
             if e_new <= energy * (1.0 + 1e-12):
                 break
             dq = 0.5 * dq
+        else:
+            break  # no step lowers the energy: q is (close to) a minimum
+        q, A, g, energy = q_new, A_new, g_new, e_new
+        if np.abs(dq).max() < 1e-7:
+            break
+    return q
+
+
+def _closed_pose_spring_update(robot: Robot, q: np.ndarray, springs, iterations: int) -> np.ndarray:
+    """:func:`pose_spring_update` along the loop closures: the start projected onto them,
+    then Gauss-Newton steps on the system reduced to their null space (:func:`_closed_system`;
+    joints at a limit and pushed outwards held), each corrected to second order, brought
+    back onto them and halved while it raises the energy.  A start that
+    cannot be closed is returned as it is."""
+    s = _structure(robot)
+    limited = s.limits is not None
+    q_start = _closed_step(robot, q, np.zeros(robot.nv), np.zeros(robot.nv, dtype=bool), limited)
+    if q_start is None:
+        return q
+    q = q_start
+    A, g, energy = springs(q)
+    for _ in range(iterations):
+        H, gr, N, held, _, second = _closed_system(robot, s, q, g, A, newton=False)
+        z = _newton_step(H, gr)
+        for _ in range(BACKTRACK + 1):
+            dq = second(N @ z)
+            q_new = _closed_step(robot, q, dq, held, limited)
+            if q_new is not None:
+                A_new, g_new, e_new = springs(q_new)
+                if e_new <= energy * (1.0 + 1e-12):
+                    break
+            z = 0.5 * z
         else:
             break  # no step lowers the energy: q is (close to) a minimum
         q, A, g, energy = q_new, A_new, g_new, e_new
