@@ -167,8 +167,8 @@ class Closures:
         """(2 K, 7) world placements (XYZQUAT) of every closure's two ends (parent, child, ...)
         after a forward pass into ``data``."""
         X = np.empty((len(self._end_joint), 7))
-        kernels.frame_coordinates([pin.SE3ToXYZQUAT(M) for M in data.oMi.tolist()], self._end_joint,
-                                  self._end_offset, X)
+        xyzquat = pin.SE3ToXYZQUAT
+        kernels.frame_coordinates([xyzquat(M) for M in data.oMi.tolist()], self._end_joint, self._end_offset, X)
         return X
 
     def _datas(self, data: pin.Data) -> pin.StdVec_RigidConstraintData:
@@ -304,19 +304,23 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
     after ``pin.computeJointJacobians`` there."""
     held = held.copy()
     limited = np.isfinite(lower)
+    limits = bool(limited.any())
+    clipped = limited
     pin.computeJointJacobians(model, data, q)
     r, J, _ = closures.system(model, data, 1)
     err = float(np.abs(r).max(initial=0.0))
     for _ in range(max_iter):
         if err <= tol:
             break
-        J[:, held] = 0.0
+        if held.any():
+            J[:, held] = 0.0
         dq = least_norm(J, r)
         for _ in range(9):
             q_new = pin.integrate(model, q, dq)
-            clipped = limited & ((q_new < lower) | (q_new > upper))
-            if clipped.any():
-                q_new = np.clip(q_new, lower, upper)
+            if limits:
+                clipped = limited & ((q_new < lower) | (q_new > upper))
+                if clipped.any():
+                    q_new = np.clip(q_new, lower, upper)
             pin.computeJointJacobians(model, data, q_new)
             r_new, J_new, _ = closures.system(model, data, 1)
             err_new = float(np.abs(r_new).max())
@@ -327,7 +331,7 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
             pin.computeJointJacobians(model, data, q)  # data back at q
             break
         q, r, J, err = q_new, r_new, J_new, err_new
-        if clipped.any():
+        if limits and clipped.any():
             held[_q_to_v(model, np.flatnonzero(clipped))] = True
     return q, r
 

@@ -400,15 +400,15 @@ def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_it
 
 def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, limited: bool) -> np.ndarray | None:
     """``pin.integrate(q, dq)`` (clipped into the joint limits if ``limited``) brought back
-    onto the closures by Gauss-Newton (:func:`kms2pin.closures.project`, to 1e-3 of their
+    onto the closures by Gauss-Newton (:func:`kms2pin.closures.project`, to a tenth of their
     tolerance), or None if they cannot be closed there."""
     model, data = robot.model, robot.data
     q_new = pin.integrate(model, q, dq)
     if limited:
         q_new = robot.clamp(q_new)
     q_new, r = project(robot._closures, model, data, q_new, robot.lower_limits, robot.upper_limits, held,
-                       1e-3 * robot._closure_tol)
-    return q_new if np.abs(r).max(initial=0.0) <= 1e-3 * robot._closure_tol else None
+                       0.1 * robot._closure_tol)
+    return q_new if np.abs(r).max(initial=0.0) <= 0.1 * robot._closure_tol else None
 
 
 def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray, H: np.ndarray,
@@ -435,7 +435,8 @@ def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray,
             held[at[np.where(low[low | high], mu < 0, mu > 0)]] = True
     k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H,
                               curvature if newton else curvature[:0])
-    Jc[:, held] = 0.0
+    if held.any():
+        Jc[:, held] = 0.0
 
     def second(dq: np.ndarray) -> np.ndarray:
         """``dq`` (along the closures) plus its second-order correction: the least-norm δ with

@@ -284,7 +284,7 @@ def updates(robot, n: int, seed: int = 0):
 
 
 def stewart_without_limits() -> kms2pin.Robot:
-    text = (SPECS / "stewart.kms").read_text().replace(", 0.1, 0.45);", ");")
+    text = (SPECS / "stewart.kms").read_text().replace(", 0.05, 0.45);", ");")
     return kms2pin.load(kms2pin.parse_text(text, "stewart.kms"))
 
 
