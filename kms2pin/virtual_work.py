@@ -321,25 +321,12 @@ def static_update(
             break
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
-        scale = max(hmax, 1e-12)
-        accepted = False
-        for _ in range(40):
-            if not kernels.solve_shifted(H, grad, lam * scale, step):  # not positive definite
-                lam = max(lam * 10.0, 1e-8)
-                continue
-            if not step @ grad < 0:  # not a descent direction: H + lam I is not positive definite
-                lam = max(lam * 10.0, 1e-8)
-                continue
+        def trial(step, q=q):
             q_new = pin.integrate(robot.model, q, step)
-            if bounds is not None:
-                q_new = robot.clamp(q_new)
-            lin = ev.linearize_full(q_new)
-            if lin[0] <= energy + 1e-15 * max(1.0, energy):
-                accepted = True
-                lam = max(lam * 0.1, 1e-12)
-                break
-            lam = max(lam * 10.0, 1e-8)
-        if not accepted:
+            return robot.clamp(q_new) if bounds is not None else q_new
+
+        lam, q_new, lin = _levenberg_marquardt(H, grad, lam, max(hmax, 1e-12), energy, step, trial, ev.linearize_full)
+        if q_new is None:
             message = "no step decreases the energy further"
             break
         q = q_new
@@ -375,20 +362,13 @@ def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_it
         if it >= max_iter:
             break
         it += 1
+        def trial(z, q=q, N=N, held=held, second=second):
+            return _closed_step(robot, q, second(N @ z), held, ev.s.limits is not None)
+
         scale = max(float(H.diagonal().max(initial=0.0)), 1e-12)
-        z = np.empty(len(g))
-        accepted = False
-        for _ in range(40):
-            if kernels.solve_shifted(H, g, lam * scale, z) and z @ g < 0:
-                q_try = _closed_step(robot, q, second(N @ z), held, ev.s.limits is not None)
-                if q_try is not None:
-                    lin_try = ev.linearize_full(q_try)
-                    if lin_try[0] <= lin[0] + 1e-15 * max(1.0, lin[0]):
-                        accepted = True
-                        lam = max(lam * 0.1, 1e-12)
-                        break
-            lam = max(lam * 10.0, 1e-8)
-        if not accepted:
+        lam, q_try, lin_try = _levenberg_marquardt(H, g, lam, scale, lin[0], np.empty(len(g)), trial,
+                                                   ev.linearize_full)
+        if q_try is None:
             message = "no step decreases the energy further"
             break
         q, lin = q_try, lin_try
@@ -453,6 +433,25 @@ def _reduce(A: np.ndarray, grad: np.ndarray, H: np.ndarray, curvature: np.ndarra
     N, Hr, gr, lam = np.empty((nv, nv)), np.empty((nv, nv)), np.empty(nv), np.empty(len(A))
     rank = kernels.nullspace_system(A, grad, H, curvature, N, Hr, gr, lam)
     return nv - rank, N, Hr, gr, lam
+
+
+def _levenberg_marquardt(H: np.ndarray, grad: np.ndarray, lam: float, scale: float, energy: float,
+                         step: np.ndarray, trial, evaluate):
+    """One Levenberg-Marquardt search: the step of (H + lam scale I) step = -grad (in the
+    buffer ``step``), lam raised tenfold while H + lam I is not positive definite, the step
+    is no descent direction, ``trial(step)`` has no configuration (None) or ``evaluate``'s
+    energy (its first value) there is above ``energy``; lam lowered tenfold once one is
+    accepted.  Returns (lam, configuration, ``evaluate``'s result), or (lam, None, None)
+    after 40 tries."""
+    for _ in range(40):
+        if kernels.solve_shifted(H, grad, lam * scale, step) and step @ grad < 0:
+            q_new = trial(step)
+            if q_new is not None:
+                lin = evaluate(q_new)
+                if lin[0] <= energy + 1e-15 * max(1.0, energy):
+                    return max(lam * 0.1, 1e-12), q_new, lin
+        lam = max(lam * 10.0, 1e-8)
+    return lam, None, None
 
 
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
@@ -589,20 +588,31 @@ def pose_spring_update(
                 free = ~blocked
                 dq = np.zeros(nv)
                 dq[free] = _newton_step(np.ascontiguousarray(A[np.ix_(free, free)]), g[free])
-        for _ in range(BACKTRACK + 1):
+        def trial(dq, q=q):
             q_new = pin.integrate(model, q, dq)
-            if limited:  # projected Gauss-Newton: the spec's joint limits
-                q_new = robot.clamp(q_new)
-            A_new, g_new, e_new = springs(q_new)
-            if e_new <= energy * (1.0 + 1e-12):
-                break
-            dq = 0.5 * dq
-        else:
+            return robot.clamp(q_new) if limited else q_new  # projected Gauss-Newton: the spec's joint limits
+
+        found = _backtracked(springs, energy, dq, trial)
+        if found is None:
             break  # no step lowers the energy: q is (close to) a minimum
-        q, A, g, energy = q_new, A_new, g_new, e_new
+        q, A, g, energy, dq = found
         if np.abs(dq).max() < 1e-7:
             break
     return q
+
+
+def _backtracked(springs, energy: float, step: np.ndarray, trial):
+    """The first of ``step``, ``step / 2``, ... (:data:`BACKTRACK` halvings) whose ``trial``
+    configuration (None: none there) has a spring energy no higher than ``energy``:
+    (configuration, its A, g and energy, the step), or None."""
+    for _ in range(BACKTRACK + 1):
+        q_new = trial(step)
+        if q_new is not None:
+            A_new, g_new, e_new = springs(q_new)
+            if e_new <= energy * (1.0 + 1e-12):
+                return q_new, A_new, g_new, e_new, step
+        step = 0.5 * step
+    return None
 
 
 def _closed_pose_spring_update(robot: Robot, q: np.ndarray, springs, iterations: int) -> np.ndarray:
@@ -620,19 +630,14 @@ def _closed_pose_spring_update(robot: Robot, q: np.ndarray, springs, iterations:
     A, g, energy = springs(q)
     for _ in range(iterations):
         H, gr, N, held, _, second = _closed_system(robot, s, q, g, A, newton=False)
-        z = _newton_step(H, gr)
-        for _ in range(BACKTRACK + 1):
-            dq = second(N @ z)
-            q_new = _closed_step(robot, q, dq, held, limited)
-            if q_new is not None:
-                A_new, g_new, e_new = springs(q_new)
-                if e_new <= energy * (1.0 + 1e-12):
-                    break
-            z = 0.5 * z
-        else:
+        def trial(z, q=q, N=N, held=held, second=second):
+            return _closed_step(robot, q, second(N @ z), held, limited)
+
+        found = _backtracked(springs, energy, _newton_step(H, gr), trial)
+        if found is None:
             break  # no step lowers the energy: q is (close to) a minimum
-        q, A, g, energy = q_new, A_new, g_new, e_new
-        if np.abs(dq).max() < 1e-7:
+        q, A, g, energy, z = found
+        if np.abs(N @ z).max() < 1e-7:
             break
     return q
 
