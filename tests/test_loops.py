@@ -305,6 +305,26 @@ def test_fast_path_and_reference_reach_the_same_equilibrium(name):
         assert np.abs(sym.C(robot.maximal_coordinates(fast.q))).max() < 1e-9
 
 
+def test_codegen_writes_the_closures_rows(tmp_path):
+    """The generated C(q) (thesis §3.2.2) has the closure's rows, vanishes where the loop is
+    closed and counts the mechanism's degrees of freedom."""
+    import importlib.util
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["codegen", str(SPECS / "fourbar.kms"), "--lang", "python", "-o", str(tmp_path)]) == 0
+    spec = importlib.util.spec_from_file_location("fourbar_constraints", tmp_path / "fourbar_constraints.py")
+    generated = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(generated)
+    robot = load("fourbar")
+    assert generated.DOF == robot.mobility == 1
+    assert [lab for lab in generated.LABELS if lab.startswith("rockerLink_tip")] == [
+        f"rockerLink_tip {what} {a}" for what in ("position", "axis") for a in "xyz"]
+    q = robot.random_configuration(np.random.default_rng(0), 60.0)
+    assert np.abs(generated.kms_constraints(robot.maximal_coordinates(q).ravel())).max() < 1e-12
+    opened = robot.with_coordinates(q, {"crankLink_base": math.degrees(q[0]) + 10})
+    assert np.abs(generated.kms_constraints(robot.maximal_coordinates(opened).ravel())).max() > 1e-3
+
+
 def slsqp_energy(robot, q0, targets, start) -> float:
     """An independent constrained optimizer: SciPy's SLSQP on the spring energy over the
     joint coordinates (tangent space at ``start``), the closures' rows as equality
