@@ -43,7 +43,8 @@ def cameras(robot, n, level=False, scale=1.0):
     ``scale``: the rig shrunk about the model for a smaller model (the human, 1.75 m, is
     0.45 of the thesis's full body and stands half as far from the front camera).
     """
-    c = robot.q_rest[:3]
+    # the free root's rest position; with the spec's root, the mean of the body centres
+    c = robot.q_rest[:3] if robot.root == "free" else np.mean([P.translation for P in robot.body_poses(robot.q_rest)], 0)
     if level:
         cams = [
             Camera.default(),
@@ -102,6 +103,8 @@ CASES = {
     "human-1cam": ("human", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
     "human-random-2cam": ("human", "random", 2),
     "human-1cam-320": ("human", "walk", 1, {"upright": 0.1, "rest_prior": 0.01}),
+    # a closed chain (issue 33): the Delta robot on its base, its five loops held on every frame
+    "delta-2cam": ("delta", "random", 2, {"root": "spec"}),
 }
 
 #: the rig's scale per spec (cameras()): the thesis's models' heights are about 3.9 units
@@ -136,7 +139,7 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, restart=None, *
     track's last 30 frames owe it to those frames, not to what went before: no drift."""
     spec, motion_name, ncam, *case_kw = CASES[name]
     tracker_kw = {**(case_kw[0] if case_kw else {}), **tracker_kw}
-    robot = load(SPECS / f"{spec}.kms", root="free")
+    robot = load(SPECS / f"{spec}.kms", root=tracker_kw.pop("root", "free"))
     rng = np.random.default_rng(seed)
     motion = make_motion(robot, motion_name, frames, rng)
     f = RESOLUTION.get(name, RESOLUTION.get(spec, 1))
@@ -176,6 +179,9 @@ def run_case(name, frames, noise, mismatch, level=False, seed=0, restart=None, *
                  f"{last_tracked:.3f} % ({restarted:.2f}x)")
     rig = "level" if level and len(cams) > 1 else "raised"
     tag = f" seed {seed}" if seed else ""
+    if robot.closures:  # every frame's loops closed
+        worst = max(float(robot.closure_residual(r.q).max()) for r in res)
+        again += f" | loops closed on every frame: largest residual {worst:.1e}"
     print(
         f"{name + tag:{_WIDTH}s} {rig:6s} {frames:4d} fr | centre err {rep['mean_centre_error_pct']:.3f} % | rev RMSE "
         f"{rep['revolute_rmse_deg']:.2f} deg | worst {rep['worst_frame_error_pct']:.3f} % (frame "

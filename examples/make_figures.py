@@ -25,7 +25,7 @@ import kms2pin
 from kms2pin.viewer import RobotView, draw_static_update, parse_pose, read_png, render
 
 ROOT = Path(__file__).resolve().parents[1]
-SPECS = ("puma600", "lowerbody", "fullbody", "jplhand", "human", "gantry")
+SPECS = ("puma600", "lowerbody", "fullbody", "jplhand", "human", "gantry", "fourbar", "delta", "stewart")
 POSES = {
     # thesis fig. 3.1: a second arm position
     "puma600": "base_inertialAnchor=-20 link1_lowerLink=140 link2_lowerLink=45 link3_lowerLink=-70",
@@ -48,12 +48,18 @@ POSES = {
              "rightThigh_hip_z=20 torso_waist_y=20 torso_waist_x=8 head_neck_y=-30",
     # ours: every slide moved, the tool turned
     "gantry": "bridge_shoe=0.5 carriage_shoe=-0.3 quill_top=0.5 tool_wrist=60",
+    # ours, with kinematic loops (the closing joints follow the joints set): the crank turned on
+    "fourbar": "crankLink_base=160",
+    # the three arms at different angles: the platform moves off centre, still level
+    "delta": "arm0_shoulder=10 arm1_shoulder=50 arm2_shoulder=35",
+    # the legs on one side lengthened, on the other shortened: the platform tilts by 22 deg
+    "stewart": "pis0_foot=0.25 pis1_foot=0.25 pis2_foot=0.2 pis3_foot=0.12 pis4_foot=0.12 pis5_foot=0.2",
 }
 # static update: from rest towards the posed configuration, M-step targets perturbed
 STATIC_UPDATE_NOISE = {"angle_deg": 12.0, "fraction": 0.06}
 # the static-update motion is mostly in the y-z plane (legs, arms, planar PUMA links): look from the side
 STATIC_UPDATE_CAMERA = {"puma600": "side", "lowerbody": "side", "fullbody": "side", "jplhand": "iso",
-                        "human": "iso", "gantry": "iso"}
+                        "human": "iso", "gantry": "iso", "fourbar": "front", "delta": "iso", "stewart": "iso"}
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:

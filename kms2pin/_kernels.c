@@ -289,6 +289,343 @@ static PyObject *frame_coordinates(PyObject *self, PyObject *const *args, Py_ssi
     Py_RETURN_NONE;
 }
 
+/* closure_terms(J, X, moving, kind, end, vec, row, coef, order, r, Jc, H, what)
+ *
+ * Loop closures (kms2pin/closures.py) written as dot-product terms: term t adds
+ * coef[t] x_t . y_t to row row[t].  Side s of a term, kind[t, s]: 0 the constant
+ * vec[t, 3s..3s+2], 1 that vector fixed in end e = end[t, s] (R_e v), 2 end e's
+ * origin p_e.  X (E, 7) the ends' XYZQUAT placements, moving (E, nv) 1 where
+ * column a moves end e.  Sets r; with what >= 1 the Jacobian Jc (rows, nv) in the
+ * tangent space (a vector's column b: omega_b x x; a point's: v_b + omega_b x p);
+ * with what >= 2 each row's curvature H[r] = d^2 r_r / dq^2 (rows, nv, nv; C
+ * order), with d^2 x / dq_a dq_b =
+ * omega_a x (dx/dq_b) weighted by order[a, b] (1: a before b on the chain, 1/2
+ * within one joint) and symmetrized, plus the product terms dx . dy.
+ */
+static void closure_side(int kind, const double *R, const double *p, const double *v, const double *Wm,
+                         const double *Pm, Py_ssize_t nv, int jac, double *x, double *Xj)
+{
+    if (kind == 0) {
+        for (int c = 0; c < 3; c++) x[c] = v[c];
+    } else if (kind == 1) {
+        for (int c = 0; c < 3; c++) x[c] = R[3 * c] * v[0] + R[3 * c + 1] * v[1] + R[3 * c + 2] * v[2];
+    } else {
+        for (int c = 0; c < 3; c++) x[c] = p[c];
+    }
+    if (!jac) return;
+    for (Py_ssize_t b = 0; b < nv; b++) {
+        if (kind == 0) {
+            Xj[b] = Xj[nv + b] = Xj[2 * nv + b] = 0.0;
+        } else if (kind == 1) {
+            const double w[3] = {Wm[b], Wm[nv + b], Wm[2 * nv + b]};
+            double o[3];
+            cross(w, x, o);
+            Xj[b] = o[0], Xj[nv + b] = o[1], Xj[2 * nv + b] = o[2];
+        } else {
+            Xj[b] = Pm[b], Xj[nv + b] = Pm[nv + b], Xj[2 * nv + b] = Pm[2 * nv + b];
+        }
+    }
+}
+
+/* M[a, b] += order[a, b] omega_a . (X_b x f) over the columns a, b that move the end (cols) */
+static void closure_curve(const double *Wm, const double *Xj, const double *f, const Buf *order, Py_ssize_t nv,
+                          const Py_ssize_t *cols, Py_ssize_t ncols, double *M)
+{
+    for (Py_ssize_t j = 0; j < ncols; j++) {
+        Py_ssize_t b = cols[j];
+        const double xb[3] = {Xj[b], Xj[nv + b], Xj[2 * nv + b]};
+        double c[3];
+        cross(xb, f, c);
+        for (Py_ssize_t i = 0; i < ncols; i++) {
+            Py_ssize_t a = cols[i];
+            double o = AT(*order, a, b);
+            if (o != 0.0) M[a * nv + b] += o * (Wm[a] * c[0] + Wm[nv + a] * c[1] + Wm[2 * nv + a] * c[2]);
+        }
+    }
+}
+
+static PyObject *closure_terms(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 13) {
+        PyErr_SetString(PyExc_TypeError, "closure_terms takes 13 arguments");
+        return NULL;
+    }
+    Buf b[12];
+    memset(b, 0, sizeof(b));
+    static const char *names[12] = {"J", "X", "moving", "kind", "end", "vec", "row", "coef", "order", "r", "Jc", "H"};
+    for (int i = 0; i < 12; i++) {
+        if (get_buf(args[i], &b[i], i >= 9, names[i]) < 0) {
+            release(b, 12);
+            return NULL;
+        }
+    }
+    long what = PyLong_AsLong(args[12]);
+    Buf J = b[0], X = b[1], MV = b[2], KD = b[3], EN = b[4], VC = b[5], RW = b[6], CF = b[7], OR = b[8],
+        R_ = b[9], JC = b[10], H = b[11];
+    Py_ssize_t E = X.view.ndim == 2 ? X.view.shape[0] : -1;
+    Py_ssize_t nv = J.view.ndim == 2 ? J.view.shape[1] : -1;
+    Py_ssize_t T = RW.view.ndim == 1 ? RW.view.shape[0] : -1;
+    Py_ssize_t rows = R_.view.ndim == 1 ? R_.view.shape[0] : -1;
+    if ((what == -1 && PyErr_Occurred()) || check_2d(&J, 6, -1, "J") || check_2d(&X, -1, 7, "X") ||
+        check_2d(&MV, E, nv, "moving") || check_2d(&KD, T, 2, "kind") || check_2d(&EN, T, 2, "end") ||
+        check_2d(&VC, T, 6, "vec") || T < 0 || CF.view.ndim != 1 || CF.view.shape[0] != T || rows < 0 ||
+        (what >= 1 && check_2d(&JC, rows, nv, "Jc")) || (what >= 2 && check_2d(&OR, nv, nv, "order")) ||
+        (what >= 2 && (H.view.ndim != 3 || H.view.shape[0] != rows || H.view.shape[1] != nv ||
+                       H.view.shape[2] != nv || !PyBuffer_IsContiguous(&H.view, 'C')))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "closure_terms: wrong shapes (H: C-contiguous)");
+        release(b, 12);
+        return NULL;
+    }
+#define V1(bb, i) (*(double *)((char *)(bb).view.buf + (i) * (bb).view.strides[0]))
+    for (Py_ssize_t t = 0; t < T; t++) {
+        Py_ssize_t row = (Py_ssize_t)V1(RW, t), e0 = (Py_ssize_t)AT(EN, t, 0), e1 = (Py_ssize_t)AT(EN, t, 1);
+        if (row < 0 || row >= rows || e0 < 0 || e0 >= E || e1 < 0 || e1 >= E) {
+            PyErr_SetString(PyExc_IndexError, "closure_terms: row or end out of range");
+            release(b, 12);
+            return NULL;
+        }
+    }
+    /* per end: R (row-major), p, and the masked omega and point-velocity columns */
+    size_t need = (size_t)E * (12 + 6 * (size_t)nv) + 6 * (size_t)nv;
+    double *buf = (double *)PyMem_Calloc(need ? need : 1, sizeof(double));
+    Py_ssize_t *cols = (Py_ssize_t *)PyMem_Calloc((size_t)(E * nv + E) + 1, sizeof(Py_ssize_t));
+    if (buf == NULL || cols == NULL) {
+        PyMem_Free(buf);
+        PyMem_Free(cols);
+        release(b, 12);
+        return PyErr_NoMemory();
+    }
+    Py_ssize_t *ncols = cols + E * nv; /* end e's moving columns: cols[e * nv .. e * nv + ncols[e]) */
+    double *Rp = buf, *Wm = buf + 12 * E, *Pm = Wm + 3 * nv * E, *X0 = Pm + 3 * nv * E, *Y1 = X0 + 3 * nv;
+    double *Hall = what >= 2 ? (double *)H.view.buf : NULL; /* each row's M, then H = M + M^T */
+    if (Hall != NULL) memset(Hall, 0, sizeof(double) * (size_t)(rows * nv * nv));
+    for (Py_ssize_t e = 0; e < E; e++) {
+        double x = AT(X, e, 3), y = AT(X, e, 4), z = AT(X, e, 5), w = AT(X, e, 6);
+        double *R = Rp + 12 * e, *p = R + 9;
+        R[0] = 1 - 2 * (y * y + z * z), R[1] = 2 * (x * y - z * w), R[2] = 2 * (x * z + y * w);
+        R[3] = 2 * (x * y + z * w), R[4] = 1 - 2 * (x * x + z * z), R[5] = 2 * (y * z - x * w);
+        R[6] = 2 * (x * z - y * w), R[7] = 2 * (y * z + x * w), R[8] = 1 - 2 * (x * x + y * y);
+        for (int c = 0; c < 3; c++) p[c] = AT(X, e, c);
+        if (what < 1) continue;
+        double *W = Wm + 3 * nv * e, *P = Pm + 3 * nv * e;
+        for (Py_ssize_t a = 0; a < nv; a++) {
+            double m = AT(MV, e, a);
+            if (m == 0.0) continue;
+            cols[e * nv + ncols[e]++] = a;
+            const double om[3] = {AT(J, 3, a), AT(J, 4, a), AT(J, 5, a)};
+            double oxp[3];
+            cross(om, p, oxp);
+            for (int c = 0; c < 3; c++) {
+                W[c * nv + a] = m * om[c];
+                P[c * nv + a] = m * (AT(J, c, a) + oxp[c]);
+            }
+        }
+    }
+    for (Py_ssize_t i = 0; i < rows; i++) {
+        V1(R_, i) = 0.0;
+        for (Py_ssize_t a = 0; what >= 1 && a < nv; a++) AT(JC, i, a) = 0.0;
+    }
+    for (Py_ssize_t t = 0; t < T; t++) {
+        Py_ssize_t row = (Py_ssize_t)V1(RW, t), e0 = (Py_ssize_t)AT(EN, t, 0), e1 = (Py_ssize_t)AT(EN, t, 1);
+        int k0 = (int)AT(KD, t, 0), k1 = (int)AT(KD, t, 1);
+        double v0[3] = {AT(VC, t, 0), AT(VC, t, 1), AT(VC, t, 2)}, v1[3] = {AT(VC, t, 3), AT(VC, t, 4), AT(VC, t, 5)};
+        double x[3], y[3], coef = V1(CF, t);
+        closure_side(k0, Rp + 12 * e0, Rp + 12 * e0 + 9, v0, Wm + 3 * nv * e0, Pm + 3 * nv * e0, nv, what >= 1, x, X0);
+        closure_side(k1, Rp + 12 * e1, Rp + 12 * e1 + 9, v1, Wm + 3 * nv * e1, Pm + 3 * nv * e1, nv, what >= 1, y, Y1);
+        V1(R_, row) += coef * dot3(x, y);
+        if (what < 1) continue;
+        for (Py_ssize_t a = 0; a < nv; a++)
+            AT(JC, row, a) += coef * (y[0] * X0[a] + y[1] * X0[nv + a] + y[2] * X0[2 * nv + a] + x[0] * Y1[a] +
+                                      x[1] * Y1[nv + a] + x[2] * Y1[2 * nv + a]);
+        double wt = what >= 2 ? coef : 0.0;
+        if (wt == 0.0) continue;
+        double *M = Hall + row * nv * nv;
+        const double fy[3] = {wt * y[0], wt * y[1], wt * y[2]}, fx[3] = {wt * x[0], wt * x[1], wt * x[2]};
+        const Py_ssize_t *c0 = cols + e0 * nv, *c1 = cols + e1 * nv;
+        if (k0 > 0) closure_curve(Wm + 3 * nv * e0, X0, fy, &OR, nv, c0, ncols[e0], M);
+        if (k1 > 0) closure_curve(Wm + 3 * nv * e1, Y1, fx, &OR, nv, c1, ncols[e1], M);
+        if (k0 == 0 || k1 == 0) continue;
+        for (Py_ssize_t i = 0; i < ncols[e0]; i++)
+            for (Py_ssize_t j = 0; j < ncols[e1]; j++) {
+                Py_ssize_t a = c0[i], c = c1[j];
+                double prod = X0[a] * Y1[c] + X0[nv + a] * Y1[nv + c] + X0[2 * nv + a] * Y1[2 * nv + c];
+                M[a * nv + c] += 0.5 * wt * prod;
+                M[c * nv + a] += 0.5 * wt * prod;
+            }
+    }
+    for (Py_ssize_t i = 0; Hall != NULL && i < rows; i++) {
+        double *M = Hall + i * nv * nv;
+        for (Py_ssize_t a = 0; a < nv; a++)
+            for (Py_ssize_t c = 0; c < a; c++) M[a * nv + c] = M[c * nv + a] = M[a * nv + c] + M[c * nv + a];
+        for (Py_ssize_t a = 0; a < nv; a++) M[a * nv + a] *= 2.0;
+    }
+#undef V1
+    PyMem_Free(buf);
+    PyMem_Free(cols);
+    release(b, 12);
+    Py_RETURN_NONE;
+}
+
+/* nullspace_system(A, g, H, C, N, Hr, gr, lam) -> rank
+ *
+ * The Newton system of the static update reduced to the null space of the
+ * constraints A dq = 0 (A (m, nv): loop closures' Jacobian rows, then unit rows of
+ * held columns): a Householder QR of A^T with column pivoting, rank where |R_kk|
+ * drops below 1e-10 |R_00|; N (nv, nv) gets an orthonormal basis of the null space
+ * in its first k = nv - rank columns; lam (m) the basic least-squares multipliers
+ * of A^T lam = -g; Hr (nv, nv) gets N^T (H + sum_r lam_r C[r]) N in its top-left
+ * k x k block (C (mc, nv, nv), C order: the first mc rows' curvature) and gr the
+ * first k entries of N^T g.
+ */
+static PyObject *nullspace_system(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "nullspace_system takes 8 arguments");
+        return NULL;
+    }
+    Buf b[8];
+    memset(b, 0, sizeof(b));
+    static const char *names[8] = {"A", "g", "H", "C", "N", "Hr", "gr", "lam"};
+    for (int i = 0; i < 8; i++) {
+        if (get_buf(args[i], &b[i], i >= 4, names[i]) < 0) {
+            release(b, 8);
+            return NULL;
+        }
+    }
+    Buf A = b[0], G = b[1], H = b[2], C = b[3], N = b[4], HR = b[5], GR = b[6], LM = b[7];
+    Py_ssize_t m = A.view.ndim == 2 ? A.view.shape[0] : -1, nv = A.view.ndim == 2 ? A.view.shape[1] : -1;
+    Py_ssize_t mc = C.view.ndim == 3 ? C.view.shape[0] : -1;
+    if (m < 0 || G.view.ndim != 1 || G.view.shape[0] != nv || check_2d(&H, nv, nv, "H") || mc < 0 || mc > m ||
+        (mc > 0 && (C.view.shape[1] != nv || C.view.shape[2] != nv || !PyBuffer_IsContiguous(&C.view, 'C'))) ||
+        check_2d(&N, nv, nv, "N") || check_2d(&HR, nv, nv, "Hr") || GR.view.ndim != 1 || GR.view.shape[0] != nv ||
+        LM.view.ndim != 1 || LM.view.shape[0] != m) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "nullspace_system: wrong shapes");
+        release(b, 8);
+        return NULL;
+    }
+#define V1(bb, i) (*(double *)((char *)(bb).view.buf + (i) * (bb).view.strides[0]))
+    /* T = A^T, column j (row j of A) at T + j * nv; Q (nv x nv) row-major; Hf; scratch */
+    double *T = (double *)PyMem_Calloc((size_t)(m * nv + 3 * nv * nv + 2 * nv + m + 1), sizeof(double));
+    Py_ssize_t *perm = (Py_ssize_t *)PyMem_Calloc((size_t)m + 1, sizeof(Py_ssize_t));
+    if (T == NULL || perm == NULL) {
+        PyMem_Free(T);
+        PyMem_Free(perm);
+        release(b, 8);
+        return PyErr_NoMemory();
+    }
+    double *Q = T + m * nv, *Hf = Q + nv * nv, *W = Hf + nv * nv, *beta = W + nv * nv, *y = beta + nv, *gv = y + m;
+    for (Py_ssize_t j = 0; j < m; j++) {
+        perm[j] = j;
+        for (Py_ssize_t i = 0; i < nv; i++) T[j * nv + i] = AT(A, j, i);
+    }
+    for (Py_ssize_t i = 0; i < nv; i++) gv[i] = V1(G, i);
+    Py_ssize_t rank = 0, steps = m < nv ? m : nv;
+    double first = 0.0;
+    for (Py_ssize_t k = 0; k < steps; k++) {
+        Py_ssize_t best = k;
+        double bestn = -1.0;
+        for (Py_ssize_t j = k; j < m; j++) { /* the column with the largest remaining norm */
+            double s = 0.0;
+            for (Py_ssize_t i = k; i < nv; i++) s += T[j * nv + i] * T[j * nv + i];
+            if (s > bestn) bestn = s, best = j;
+        }
+        double norm = sqrt(bestn);
+        if (k == 0) first = norm;
+        if (!(norm > 1e-10 * first) || norm == 0.0) break;
+        if (best != k) {
+            for (Py_ssize_t i = 0; i < nv; i++) {
+                double t = T[k * nv + i];
+                T[k * nv + i] = T[best * nv + i], T[best * nv + i] = t;
+            }
+            Py_ssize_t t = perm[k];
+            perm[k] = perm[best], perm[best] = t;
+        }
+        double *v = T + k * nv, alpha = v[k] > 0 ? -norm : norm;
+        /* reflector I - beta u u^T with u = v[k:] - alpha e_k, stored in v[k:] */
+        v[k] -= alpha;
+        double un = 0.0;
+        for (Py_ssize_t i = k; i < nv; i++) un += v[i] * v[i];
+        beta[k] = un > 0 ? 2.0 / un : 0.0;
+        for (Py_ssize_t j = k + 1; j < m; j++) {
+            double *c = T + j * nv, s = 0.0;
+            for (Py_ssize_t i = k; i < nv; i++) s += v[i] * c[i];
+            s *= beta[k];
+            for (Py_ssize_t i = k; i < nv; i++) c[i] -= s * v[i];
+        }
+        y[k] = alpha; /* R_kk */
+        rank = k + 1;
+    }
+    /* Q = H_0 ... H_{rank-1}: applied to I from the last reflector */
+    for (Py_ssize_t i = 0; i < nv; i++) Q[i * nv + i] = 1.0;
+    for (Py_ssize_t k = rank - 1; k >= 0; k--) {
+        const double *v = T + k * nv;
+        for (Py_ssize_t c = 0; c < nv; c++) {
+            double s = 0.0;
+            for (Py_ssize_t i = k; i < nv; i++) s += v[i] * Q[i * nv + c];
+            s *= beta[k];
+            for (Py_ssize_t i = k; i < nv; i++) Q[i * nv + c] -= s * v[i];
+        }
+    }
+    /* multipliers: R11 z = -Q1^T g; lam[perm[i]] = z[i] (R's strict upper part is in T above the diagonal) */
+    double *z = W; /* scratch */
+    for (Py_ssize_t i = 0; i < rank; i++) {
+        double s = 0.0;
+        for (Py_ssize_t r = 0; r < nv; r++) s += Q[r * nv + i] * gv[r];
+        z[i] = -s;
+    }
+    for (Py_ssize_t i = rank - 1; i >= 0; i--) {
+        double s = z[i];
+        for (Py_ssize_t j = i + 1; j < rank; j++) s -= T[j * nv + i] * z[j];
+        z[i] = s / y[i];
+    }
+    for (Py_ssize_t j = 0; j < m; j++) V1(LM, j) = 0.0;
+    for (Py_ssize_t i = 0; i < rank; i++) V1(LM, perm[i]) = z[i];
+    /* Hf = H + sum_r lam_r C[r] */
+    const double *Cb = (const double *)C.view.buf;
+    for (Py_ssize_t a = 0; a < nv; a++)
+        for (Py_ssize_t c = 0; c < nv; c++) Hf[a * nv + c] = AT(H, a, c);
+    for (Py_ssize_t r = 0; r < mc; r++) {
+        double l = V1(LM, r);
+        if (l == 0.0) continue;
+        const double *Cr = Cb + r * nv * nv;
+        for (Py_ssize_t e = 0; e < nv * nv; e++) Hf[e] += l * Cr[e];
+    }
+    /* N = Q[:, rank:]; W = Hf N (nv x k); Hr = N^T W (symmetrized); gr = N^T g */
+    Py_ssize_t k = nv - rank;
+    for (Py_ssize_t i = 0; i < nv; i++)
+        for (Py_ssize_t c = 0; c < nv; c++) AT(N, i, c) = c < k ? Q[i * nv + rank + c] : 0.0;
+    for (Py_ssize_t a = 0; a < nv; a++)
+        for (Py_ssize_t c = 0; c < k; c++) {
+            double s = 0.0;
+            for (Py_ssize_t e = 0; e < nv; e++) s += Hf[a * nv + e] * Q[e * nv + rank + c];
+            W[a * k + c] = s;
+        }
+    for (Py_ssize_t i = 0; i < nv; i++) {
+        for (Py_ssize_t c = 0; c < nv; c++) AT(HR, i, c) = 0.0;
+        V1(GR, i) = 0.0;
+    }
+    for (Py_ssize_t i = 0; i < k; i++) {
+        double s = 0.0;
+        for (Py_ssize_t e = 0; e < nv; e++) s += Q[e * nv + rank + i] * gv[e];
+        V1(GR, i) = s;
+        for (Py_ssize_t c = 0; c <= i; c++) {
+            double u = 0.0, w = 0.0;
+            for (Py_ssize_t e = 0; e < nv; e++) {
+                u += Q[e * nv + rank + i] * W[e * k + c];
+                w += Q[e * nv + rank + c] * W[e * k + i];
+            }
+            AT(HR, i, c) = AT(HR, c, i) = 0.5 * (u + w);
+        }
+    }
+#undef V1
+    PyMem_Free(T);
+    PyMem_Free(perm);
+    release(b, 8);
+    return PyLong_FromSsize_t(rank);
+}
+
 /* solve_shifted(H, grad, shift, step_out) -> bool
  * Cholesky solve of (H + shift I) step = -grad; False if the matrix is not
  * positive definite (the Levenberg-Marquardt loop then raises the shift). */
@@ -1588,6 +1925,10 @@ static PyMethodDef methods[] = {
      "pose_springs(J, X, T, K, S, A, g) -> energy: the tracker's full-spring static update system"},
     {"body_boxes", (PyCFunction)(void (*)(void))body_boxes, METH_FASTCALL,
      "body_boxes(R, t, inner, Rwc, centre, K, delta_px, slack_px, width, height, box, delta, status)"},
+    {"closure_terms", (PyCFunction)(void (*)(void))closure_terms, METH_FASTCALL,
+     "closure_terms(J, X, moving, kind, end, vec, row, coef, order, r, Jc, H, what): loop closures"},
+    {"nullspace_system", (PyCFunction)(void (*)(void))nullspace_system, METH_FASTCALL,
+     "nullspace_system(A, g, H, C, N, Hr, gr, lam) -> rank: the Newton system on the constraints' null space"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
     {NULL, NULL, 0, NULL},

@@ -3,7 +3,8 @@ with its signature and semantics (outputs filled in place, the same return value
 
 :mod:`kms2pin.native` chooses between the two.  The C file documents each kernel; in
 brief, the static update's (thesis §2.3) are :func:`linearize`, :func:`frame_coordinates`,
-:func:`pose_springs` and :func:`solve_shifted`, and the tracker's (thesis §2.1.2, the
+:func:`pose_springs`, :func:`solve_shifted` and, for loop closures, :func:`closure_terms`
+and :func:`nullspace_system`, and the tracker's (thesis §2.1.2, the
 model in :mod:`kms2pin.ecm.mstep`'s docstring) are the closest approach of pixel rays
 to an ellipsoid, the silhouette fit's sums, the E-step's union and the body boxes.
 Unlike the C functions these do not check their arguments' types and shapes.
@@ -25,6 +26,7 @@ from scipy.linalg import lapack
 
 __all__ = [
     "body_boxes",
+    "closure_terms",
     "ellipsoid_a2",
     "estep_body",
     "estep_camera",
@@ -32,6 +34,7 @@ __all__ = [
     "fit_body",
     "frame_coordinates",
     "linearize",
+    "nullspace_system",
     "pose_springs",
     "scale_fit",
     "silhouette_fit",
@@ -137,6 +140,87 @@ def frame_coordinates(rows: Sequence[np.ndarray], joints, offsets, out) -> None:
     out[:, :3] = a[:, :3] + c + 2.0 * (aw * vxc + (V @ vxc[:, :, None])[:, :, 0])
     out[:, 3:6] = aw * ov + ow * av + (V @ ov[:, :, None])[:, :, 0]  # orientation: a (x) o
     out[:, 6] = aw[:, 0] * ow[:, 0] - np.einsum("ij,ij->i", av, ov)
+
+
+def closure_terms(J, X, moving, kind, end, vec, row, coef, order, r, Jc, H, what) -> None:
+    """Residual rows, Jacobian and curvature of loop closures written as sums of dot
+    products (:mod:`kms2pin.closures`): term t adds ``coef[t] x_t . y_t`` to row ``row[t]``.
+    Side s of a term (``kind[t, s]``): 0 a constant vector ``vec[t, 3s:3s+3]``, 1 that vector
+    fixed in end ``end[t, s]``'s frame (R_e v), 2 that end's origin p_e.  ``X`` (E, 7) the
+    ends' world placements (XYZQUAT), ``moving`` (E, nv) 1 where column a moves end e.
+    Sets ``r`` (rows); with ``what >= 1`` also ``Jc`` (rows, nv), the residual's Jacobian in
+    the tangent space; with ``what >= 2`` also each row's curvature ``H[r] = ∇²r_r`` (rows, nv,
+    nv), with ∂²x/∂q_a∂q_b = ω_a x ∂x/∂q_b for ``order[a, b]`` (1: a's joint an ancestor of
+    b's, ½ within one joint)."""
+    kind, end, row = kind.astype(int), end.astype(int), row.astype(int)
+    E = len(X)
+    R = np.array([pin.Quaternion(x[6], x[3], x[4], x[5]).toRotationMatrix() for x in X]).reshape(E, 3, 3)
+    W = J[3:][None] * moving[:, None, :]  # (E, 3, nv): each end's angular Jacobian
+    P = (J[:3][None] + _cross_cols(W, X[:, :3])) * moving[:, None, :]  # its origin's velocity
+
+    def side(s):
+        k, e, v = kind[:, s], end[:, s], vec[:, 3 * s : 3 * s + 3]
+        x = np.where((k == 0)[:, None], v, np.where((k == 1)[:, None], np.einsum("tij,tj->ti", R[e], v), X[e, :3]))
+        We = W[e] * (k > 0)[:, None, None]
+        Xj = np.where((k == 2)[:, None, None], P[e], _cross_cols(We, x))
+        return x, Xj, We
+
+    x, X0, W0 = side(0)
+    y, Y1, W1 = side(1)
+    r[:] = 0.0
+    np.add.at(r, row, coef * np.einsum("ti,ti->t", x, y))
+    if what < 1:
+        return
+    Jc[:] = 0.0
+    np.add.at(Jc, row, coef[:, None] * (np.einsum("ti,tia->ta", y, X0) + np.einsum("ti,tia->ta", x, Y1)))
+    if what < 2:
+        return
+    M = np.einsum("tia,tib->tab", W0, _cross_cols(X0, coef[:, None] * y))
+    M += np.einsum("tia,tib->tab", W1, _cross_cols(Y1, coef[:, None] * x))
+    M *= order
+    M += np.einsum("t,tia,tib->tab", coef, X0, Y1)
+    H[:] = 0.0
+    np.add.at(H, row, M + M.transpose(0, 2, 1))
+
+
+def _cross_cols(V: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(T, 3, nv): V[t, :, b] x p[t] for every t and column b."""
+    x, y, z = V[:, 0], V[:, 1], V[:, 2]
+    px, py, pz = (p[:, k, None] for k in range(3))
+    return np.stack([y * pz - z * py, z * px - x * pz, x * py - y * px], axis=1)
+
+
+def nullspace_system(A, g, H, C, N, Hr, gr, lam) -> int:
+    """The Newton system reduced to the null space of the constraints ``A dq = 0`` (A (m,
+    nv)): a QR factorisation of Aᵀ with column pivoting (LAPACK's dgeqp3), rank where
+    |R_kk| drops below 1e-10 |R_00|.  Sets the first k = nv - rank columns of ``N`` to an
+    orthonormal basis of the null space, ``lam`` (m) to the basic least-squares solution of
+    Aᵀ lam = -g, the top-left k x k block of ``Hr`` to Nᵀ (H + Σ_r lam_r C[r]) N (``C``
+    (mc, nv, nv): the first mc rows' curvature) and the first k entries of ``gr`` to Nᵀ g
+    (the rest of each zero).  Returns the rank."""
+    m, nv = A.shape
+    qr, perm, tau, _, _ = lapack.dgeqp3(A.T.copy(order="F"))
+    diag = np.abs(qr.diagonal())
+    rank = int((diag > 1e-10 * diag[0]).sum()) if diag.size and diag[0] > 0 else 0
+    full = np.zeros((nv, nv), order="F")
+    full[:, : min(m, nv)] = qr[:, :nv]
+    taus = np.zeros(nv)
+    taus[:rank] = tau[:rank]  # Q of the reflectors up to the rank (the rest only turns the null space)
+    Q = lapack.dorgqr(full, taus, overwrite_a=1)[0] if nv else full
+    lam[:] = 0.0
+    if rank:
+        lam[perm[:rank] - 1] = lapack.dtrtrs(qr[:rank, :rank], -(Q[:, :rank].T @ g))[0]
+    k = nv - rank
+    Nk = Q[:, rank:]
+    Hf = H + (lam[: len(C)] @ C.reshape(len(C), -1)).reshape(nv, nv) if len(C) else H
+    R = Nk.T @ Hf @ Nk
+    N[:] = 0.0
+    Hr[:] = 0.0
+    gr[:] = 0.0
+    N[:, :k] = Nk
+    Hr[:k, :k] = 0.5 * (R + R.T)
+    gr[:k] = Nk.T @ g
+    return rank
 
 
 def pose_springs(J, X, T, K, S, A, g) -> float:

@@ -21,14 +21,25 @@ The same tree as the URDF (:mod:`kms2pin.urdf`), in MuJoCo's terms:
   to its parent (no element).  A free
   root is ``<freejoint name="root_joint"/>`` on a root body placed at its rest pose
   (a free joint's qpos is the body's world pose: x y z, then w x y z).
-- A keyframe ``rest`` holds the spec's rest pose; ``<contact><exclude>`` the adjacent
-  pairs the SRDF excludes; gravity is 9.81 along -y (the thesis's models and cameras
+- A keyframe ``rest`` holds the spec's rest pose (with loops, its projection onto them:
+  ``rest``); ``<contact><exclude>`` the adjacent pairs the SRDF excludes (a loop
+  closure's two bodies too); gravity is 9.81 along -y (the thesis's models and cameras
   have +y up; lengths in the spec's units, metres in the thesis's models).
+- Loop closures (``System.closures``) are equality constraints between sites on their two
+  bodies (the worldbody for the inertial frame): ``<closure>_parent`` at the parent end's
+  point with the parent body's axes and ``<closure>_child`` at the child end's point with
+  the axes R_0j R_alignᵀ (:mod:`kms2pin.closures`'s frames), which coincide when the
+  closure holds.  A spherical closure is a ``connect``, a fixed one a ``weld``, a
+  revolute one two ``connect``s: at the joint point and at a point on the axis
+  (``<closure>_parent_axis``, ``<closure>_child_axis``, :func:`axis_length` along o_ij
+  and o_ji).  MuJoCo has no equality for a prismatic closure (a point on a line with the
+  orientation held): it is left out, with a comment in the file and a warning.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import pinocchio as pin
@@ -39,6 +50,7 @@ from .urdf import (
     INNER_RGBA,
     OUTER_RGBA,
     ROOT_JOINT,
+    centre_offset,
     check_root_joint_name,
     joint_origin,
     rest_angle,
@@ -100,15 +112,34 @@ def _free_root(system: System) -> tuple[str, list[str], list[float]]:
     return place, [f'<freejoint name="{ROOT_JOINT}"/>'], [*M.translation, *wxyz]
 
 
-def _open_body(system: System, body: Body, joint: Joint, free_root: bool) -> tuple[list[str], list[float]]:
-    """The lines that open ``body`` (up to its children), the child of ``joint``, and its rest qpos."""
+def _rest_qpos(joint: Joint, block: np.ndarray) -> list[float]:
+    """MuJoCo's qpos of ``joint`` for its Pinocchio coordinates ``block``: a hinge's angle, a
+    slide's offset, a ball's quaternion (w x y z) R_alignᵀ R R_align, a free joint's x y z w x y z."""
+    if joint.kind == "spherical":
+        A = ball_alignment(joint)
+        q = pin.Quaternion(A.T @ pin.Quaternion(block[3], block[0], block[1], block[2]).toRotationMatrix() @ A)
+        return [q.w, q.x, q.y, q.z]
+    if len(block) == 7:
+        return [*block[:3], block[6], *block[3:6]]
+    return [float(x) for x in block]
+
+
+def _open_body(system: System, body: Body, joint: Joint, free_root: bool,
+               rest: Mapping[str, np.ndarray] | None, sites: list[str]) -> tuple[list[str], list[float]]:
+    """The lines that open ``body`` (up to its children), the child of ``joint``, and its rest
+    qpos (``rest``: Pinocchio's coordinates by joint name, instead of the spec's); ``sites``:
+    the loop closures' sites on it."""
     if free_root and joint.parent is None:
         place, elements, qpos = _free_root(system)
+        if rest is not None:
+            qpos = _rest_qpos(joint, rest[ROOT_JOINT])
     else:
         xyz, R = joint_origin(system, joint)
         q = pin.Quaternion(R)
         place = f'pos="{vec(xyz)}" quat="{vec([q.w, q.x, q.y, q.z])}"'
         elements, qpos = JOINT_WRITERS[joint.kind](joint)
+        if rest is not None and qpos:
+            qpos = _rest_qpos(joint, rest[joint.name])
     centre = vec(-np.asarray(joint.child_bvec.pos, dtype=float))
     name = body.name
     lines = [f"<body name={attr(name)} {place}>", *("  " + e for e in elements)]
@@ -116,18 +147,21 @@ def _open_body(system: System, body: Body, joint: Joint, free_root: bool) -> tup
         f'  <geom name={attr(name + "_inner")} class="kms2pin_inner" size="{vec(body.inner)}" pos="{centre}"/>',
         f'  <geom name={attr(name + "_outer")} class="kms2pin_outer" size="{vec(body.outer)}" pos="{centre}"/>',
         f'  <site name={attr(name + "_centre")} pos="{centre}"/>',
+        *("  " + site for site in sites),
     ]
     return lines, qpos
 
 
-def _worldbody(system: System, free_root: bool) -> tuple[list[str], list[float]]:
+def _worldbody(system: System, free_root: bool, rest: Mapping[str, np.ndarray] | None,
+               sites: Mapping[str | None, list[str]]) -> tuple[list[str], list[float]]:
     """The nested bodies (depth first, with an explicit stack: no recursion limit) and the
-    rest qpos in MuJoCo's order (bodies depth first, joints in element order)."""
+    rest qpos in MuJoCo's order (bodies depth first, joints in element order); ``sites``:
+    the closures' sites per body (None: the worldbody)."""
     bodies = {b.name: b for b in system.bodies}
     children: dict[str | None, list[Joint]] = {}
     for j in system.joints:
         children.setdefault(j.parent, []).append(j)
-    lines: list[str] = []
+    lines: list[str] = ["    " + site for site in sites.get(None, [])]
     qpos: list[float] = []
     stack: list[tuple[Joint, bool]] = [(j, False) for j in reversed(children.get(None, []))]
     depth = 2
@@ -137,7 +171,8 @@ def _worldbody(system: System, free_root: bool) -> tuple[list[str], list[float]]
             depth -= 1
             lines.append("  " * depth + "</body>")
             continue
-        body_lines, body_qpos = _open_body(system, bodies[joint.child], joint, free_root)
+        body_lines, body_qpos = _open_body(system, bodies[joint.child], joint, free_root, rest,
+                                           sites.get(joint.child, []))
         lines += ["  " * depth + line for line in body_lines]
         qpos += body_qpos
         depth += 1
@@ -146,13 +181,61 @@ def _worldbody(system: System, free_root: bool) -> tuple[list[str], list[float]]
     return lines, qpos
 
 
-def to_mjcf(system: System, source: str = "", free_root: bool = False) -> str:
+def axis_length(system: System, closure: Joint) -> float:
+    """How far along a revolute closure's axis its second ``connect`` sits: the largest inner
+    semi-axis of its parent body (its child's if the parent is the inertial frame)."""
+    return float(max(system.body(closure.parent or closure.child).inner))
+
+
+def _closure_site(system: System, name: str, body: str | None, pos, R: np.ndarray) -> str:
+    """A site at ``pos`` (the body's centre frame, or the world) with axes ``R`` in the body."""
+    if body is not None:
+        pos = np.asarray(pos, dtype=float) + centre_offset(system, body)
+    q = pin.Quaternion(R)
+    return f'<site name={attr(name)} pos="{vec(pos)}" quat="{vec([q.w, q.x, q.y, q.z])}"/>'
+
+
+def _closures(system: System) -> tuple[dict[str | None, list[str]], list[str], list[str]]:
+    """The loop closures: their sites per body, their equality elements, and the comments on
+    those MuJoCo cannot express (prismatic closures, also warned about)."""
+    sites: dict[str | None, list[str]] = {}
+    equality, notes = [], []
+    for j in system.closures:
+        if j.kind == "prismatic":
+            note = (f"loop closure '{j.name}' ({j.parent_link} -> {j.child_link}) is prismatic: MuJoCo has no "
+                    "equality constraint for a point on a line with the orientation held, so it is not exported")
+            notes.append(note)
+            warnings.warn(note, stacklevel=3)
+            continue
+        o_ij, o_ji = np.asarray(j.parent_bvec.orient), np.asarray(j.child_bvec.orient)
+        R_align = alignment_matrix(o_ij, o_ji)
+        ends = [(j.parent, f"{j.name}_parent", j.parent_bvec.pos, np.eye(3), o_ij),
+                (j.child, f"{j.name}_child", j.child_bvec.pos, R_align.T, o_ji)]
+        for body, name, pos, R, _ in ends:
+            sites.setdefault(body, []).append(_closure_site(system, name, body, pos, R))
+        kind = "weld" if j.kind == "fixed" else "connect"
+        equality.append(f'    <{kind} name={attr(j.name)} site1={attr(ends[0][1])} site2={attr(ends[1][1])}/>')
+        if j.kind == "revolute":
+            L = axis_length(system, j)
+            for body, name, pos, R, o in ends:
+                sites[body].append(_closure_site(system, f"{name}_axis", body, np.asarray(pos) + L * o, R))
+            equality.append(f'    <connect name={attr(j.name + "_axis")} site1={attr(ends[0][1] + "_axis")} '
+                            f'site2={attr(ends[1][1] + "_axis")}/>')
+    return sites, equality, notes
+
+
+def to_mjcf(system: System, source: str = "", free_root: bool = False,
+            rest: Mapping[str, np.ndarray] | None = None) -> str:
     """MJCF text of one system (module docstring); ``source`` is the spec's file name for
     the header comment.  ``free_root``: the joint to the inertial frame is replaced by a
-    free joint :data:`~kms2pin.urdf.ROOT_JOINT`."""
+    free joint :data:`~kms2pin.urdf.ROOT_JOINT`.  ``rest``: the keyframe's configuration as
+    Pinocchio's coordinates by joint name (:meth:`kms2pin.Robot.joint_blocks`: a model
+    with loops, its rest pose closed) instead of the spec's.  A prismatic loop closure is
+    left out with a warning (``UserWarning``)."""
     if free_root:
         check_root_joint_name(system)
-    bodies, qpos = _worldbody(system, free_root)
+    sites, equality, notes = _closures(system)
+    bodies, qpos = _worldbody(system, free_root, rest, sites)
     head = comment(
         f"generated by kms2pin from {source or 'a spec'}; do not edit. Body frames sit at each body's joint to its "
         "parent; the ellipsoids and the <body>_centre sites at the ellipsoid centres. Inner ellipsoids (group "
@@ -176,7 +259,10 @@ def to_mjcf(system: System, source: str = "", free_root: bool = False) -> str:
         *bodies,
         "  </worldbody>",
     ]
-    pairs = [j for j in system.joints if j.parent is not None]
+    out += ["  " + comment(note) for note in notes]
+    if equality:
+        out += ["  <equality>", *equality, "  </equality>"]
+    pairs = [j for j in (*system.joints, *system.closures) if j.parent is not None and j.child is not None]
     if pairs:
         out.append("  <contact>")
         out += [f"    <exclude body1={attr(j.parent)} body2={attr(j.child)}/>" for j in pairs]

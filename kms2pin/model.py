@@ -5,9 +5,12 @@ axes (thesis mu_0,i and R_0,i, eq. 2.1); bound-vector positions are in the frame
 of the body that owns them (or in the inertial frame for inertial bvecs); lengths
 are in the spec's units (metres in the thesis models); angles in degrees.
 
-A :class:`System` is a tree rooted at the inertial frame: each body has exactly
-one joint to its parent (``Joint.parent is None`` means the inertial frame) and
-``System.bodies`` lists the bodies in preorder traversal (thesis §3.2.1).
+A :class:`System` is a spanning tree rooted at the inertial frame: each body has
+exactly one joint to its parent (``Joint.parent is None`` means the inertial frame) and
+``System.bodies`` lists the bodies in preorder traversal (thesis §3.2.1).  The joints
+that close kinematic loops (thesis §4.2) are ``System.closures``: each joins the body of
+its first argument (``parent``) to the body of its second (``child``; None for the
+inertial frame) and closes the loop :meth:`System.loop` through the tree.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+
+from .errors import Diagnostic
 
 WORLD = "world"
 
@@ -83,12 +88,15 @@ class Joint:
 
     ``limits`` bound a revolute joint's angle (degrees) or a prismatic joint's offset
     (length units) when the spec gives them; None: no limits.
+
+    A loop closure (:attr:`System.closures`) has no rest value nor limits, and its
+    ``child`` is None when its second argument is an inertial bvec.
     """
 
     name: str
     kind: str  # "fixed" | "revolute" | "spherical" | "prismatic"
     parent: str | None
-    child: str
+    child: str | None
     parent_bvec: BoundVector
     child_bvec: BoundVector
     default_angle: float = 0.0
@@ -102,6 +110,10 @@ class Joint:
         return self.parent if self.parent is not None else WORLD
 
     @property
+    def child_link(self) -> str:
+        return self.child if self.child is not None else WORLD
+
+    @property
     def dof(self) -> int:
         """Degrees of freedom: 0 fixed, 1 revolute or prismatic, 3 spherical."""
         return JOINT_DOF[self.kind]
@@ -109,12 +121,14 @@ class Joint:
 
 @dataclass(frozen=True)
 class System:
-    """One ``rigidBodySystem``: bodies in preorder and one joint per body."""
+    """One ``rigidBodySystem``: bodies in preorder, one tree joint per body, and the
+    joints that close loops (``closures``, in spec order)."""
 
     name: str
     bodies: tuple[Body, ...]
     joints: tuple[Joint, ...]  # joints[i] connects bodies[i] to its parent
     loc: Loc = Loc()
+    closures: tuple[Joint, ...] = ()
 
     @property
     def root(self) -> Body:
@@ -148,8 +162,25 @@ class System:
         return sum(j.dof for j in self.joints)
 
     def count(self, kind: str) -> int:
-        """How many joints of type ``kind`` the system has."""
+        """How many tree joints of type ``kind`` the system has."""
         return sum(1 for j in self.joints if j.kind == kind)
+
+    def _ancestry(self, body: str | None) -> list[str | None]:
+        """``body``, its parent, ..., the inertial frame (None)."""
+        out = [body]
+        while out[-1] is not None:
+            out.append(self.joint_of(out[-1]).parent)
+        return out
+
+    def loop(self, closure: Joint) -> tuple[list[str | None], list[Joint]]:
+        """The loop ``closure`` closes: its bodies from the closure's parent through the
+        tree to its child (None: the inertial frame), and the tree joints on that path in
+        the same order."""
+        up, down = self._ancestry(closure.parent), self._ancestry(closure.child)
+        common = next(b for b in up if b in set(down))
+        up, down = up[: up.index(common) + 1], down[: down.index(common)]
+        joints = [self.joint_of(b) for b in up[:-1]] + [self.joint_of(b) for b in reversed(down)]
+        return up + down[::-1], joints
 
 
 @dataclass(frozen=True)
@@ -159,6 +190,14 @@ class ModelSpec:
     systems: tuple[System, ...]
     inertial_bvecs: dict[str, BoundVector] = field(default_factory=dict, compare=False)
     path: str = "<string>"
+    text: str = field(default="", compare=False, repr=False)
+
+    def diagnostic(self, loc: Loc, message: str) -> Diagnostic:
+        """A located error at ``loc`` of the spec, with its source line (for the checks that
+        need a loaded model: a loop closure that cannot be closed)."""
+        lines = self.text.splitlines()
+        source = lines[loc.line - 1] if 0 < loc.line <= len(lines) else ""
+        return Diagnostic(self.path, max(loc.line, 1), max(loc.column, 1), message, source)
 
     def system(self, name: str | None = None) -> System:
         """The system called ``name``; with None, the only one there is."""

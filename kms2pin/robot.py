@@ -21,11 +21,12 @@ from importlib import resources
 import numpy as np
 import pinocchio as pin
 
-from .errors import RobotError, did_you_mean
+from .closures import Closures, project
+from .errors import RobotError, SpecError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
 from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_angles, xyz_rotation
 from .pinmodel import build_model
-from .urdf import centre_offset, rest_values, to_srdf, to_urdf, urdf_number
+from .urdf import ROOT_JOINT, centre_offset, rest_values, spherical_parts, to_srdf, to_urdf, urdf_number, wrap_angle
 
 ROOTS = ("spec", "free")
 
@@ -37,6 +38,9 @@ _ZERO_NORM = 1e-12
 _ROTATION_TOL = 1e-6
 #: Names of a free root's 7 coordinates of q (``root_<part>``, also the trajectory CSV's columns).
 _FREE_FLYER_COORDINATES = tuple(f"root_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))
+#: A loop closure holds when its residual is below this times the model's size (its largest
+#: bound-vector coordinate, at least 1).
+CLOSURE_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -98,6 +102,10 @@ class Robot:
             ``<joint>_x, <joint>_y, <joint>_z`` (its URDF joints).
         q_rest: the spec's rest configuration (default joint angles, rotations and
             offsets), a Pinocchio ``q``; also ``model.referenceConfigurations["rest"]``.
+            With loop closures, its projection onto them (:meth:`project`).
+        closures: the joints that close kinematic loops (``system.closures``: model
+            :class:`~kms2pin.model.Joint` objects), each a constraint between the frames
+            ``<closure>_parent`` and ``<closure>_child`` (:mod:`kms2pin.closures`).
         lower_limits, upper_limits: (nq,) bounds of ``q`` from the spec's joint limits
             (radians for revolute joints, spec length units for prismatic ones); -inf /
             +inf where the spec gives none (the free flyer, spherical joints, and every
@@ -123,16 +131,17 @@ class Robot:
             check_free_root(system)
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
-        self.srdf = to_srdf(system, source, free_root=free)
         self.model, links = build_model(system, free)
         self.bodies = tuple(b.name for b in system.bodies)
         self._index = {n: i for i, n in enumerate(self.bodies)}
         self.frame_ids = tuple(self._add_centre_frame(b, links[b]) for b in self.bodies)
+        self._closures = Closures(self.model, system, links, {b: centre_offset(system, b) for b in self.bodies})
+        # a closure holds when its residual is below this (spec length units; radians)
+        scale = max([1.0] + [abs(x) for b in system.bodies for v in b.bvecs.values() for x in v.pos])
+        self._closure_tol = CLOSURE_TOL * scale
         self.joint_names = tuple(self.model.names[1:])
         self.joints = self._joint_coordinates()
         self.coordinate_names = tuple(n for j in self.joints for n in j.names)
-        self.q_rest = self._rest_configuration()
-        self.model.referenceConfigurations["rest"] = self.q_rest.copy()
         self.lower_limits = np.full(self.model.nq, -np.inf)
         self.upper_limits = np.full(self.model.nq, np.inf)
         for j in self.joints:
@@ -140,6 +149,13 @@ class Robot:
                 lo, hi = j.spec.limits
                 scale = math.pi / 180.0 if j.kind == "revolute" else 1.0
                 self.lower_limits[j.idx_q], self.upper_limits[j.idx_q] = lo * scale, hi * scale
+        self.q_rest = self._rest_configuration()
+        rest = None
+        if self.closures:
+            self.q_rest = self._closed_rest(self.q_rest)
+            rest = self.urdf_values(self.q_rest)
+        self.srdf = to_srdf(system, source, free_root=free, rest=rest)
+        self.model.referenceConfigurations["rest"] = self.q_rest.copy()
 
     @cached_property
     def data(self) -> pin.Data:
@@ -194,6 +210,101 @@ class Robot:
             elif values:
                 q[j.idx_q] = values[0]
         return q
+
+    # ------------------------------------------------------------------ loop closures
+    @property
+    def closures(self) -> tuple[Joint, ...]:
+        """The joints that close kinematic loops, in spec order (none for a tree)."""
+        return self.system.closures
+
+    @cached_property
+    def mobility(self) -> int:
+        """Degrees of freedom with the loops closed: nv less the rank of the closures'
+        Jacobian at :attr:`q_rest` (singular values above 1e-9 of the largest); nv for a tree."""
+        if not self.closures:
+            return self.model.nv
+        pin.computeJointJacobians(self.model, self.data, self.q_rest)
+        sig = np.linalg.svd(self._closures.jacobian(self.model, self.data), compute_uv=False)
+        return self.model.nv - int((sig > 1e-9 * sig[0]).sum()) if sig.size and sig[0] > 0 else self.model.nv
+
+    def closure_residual(self, q: np.ndarray) -> np.ndarray:
+        """Each closure's residual norm at ``q`` (:attr:`closures` order; spec length units and
+        radians, :mod:`kms2pin.closures`): zero where the loops are closed."""
+        pin.forwardKinematics(self.model, self.data, self._check_q(q))
+        return self._closures.norms(self._closures.residual(self.model, self.data))
+
+    def project(self, q: np.ndarray, hold: np.ndarray | None = None) -> np.ndarray:
+        """The configuration nearest ``q`` that closes every loop: Gauss-Newton on the closures'
+        residual, each correction dq the least in the tangent-space metric with
+        ``q' = pin.integrate(q, dq)`` (:func:`kms2pin.closures.project`), within the joint
+        limits.  ``hold``: velocity indices (or an (nv,) mask) that must not move (a slider's
+        joint).  A tree's ``q`` is returned as it is (checked)."""
+        q = self._check_q(q)
+        if not self.closures:
+            return q
+        held = np.zeros(self.model.nv, dtype=bool)
+        if hold is not None:
+            held[np.asarray(hold)] = True
+        q, r = project(self._closures, self.model, self.data, self.clamp(q), self.lower_limits, self.upper_limits,
+                       held)
+        norms = self._closures.norms(r)
+        if (norms > self._closure_tol).any():
+            k = int(np.argmax(norms))
+            raise RobotError(
+                f"the loops of '{self.system.name}' cannot be closed from this configuration: closure "
+                f"'{self.closures[k].name}' stays open by {norms[k]:.3g} (a configuration nearer a closed one, "
+                "or fewer held joints, may close them)"
+            )
+        return q
+
+    def _closed_rest(self, q0: np.ndarray) -> np.ndarray:
+        """The spec's rest pose projected onto the closures; SpecError (at each closure that
+        stays open, with its loop, its gap and the joints to change) if it cannot be closed."""
+        q, r = project(self._closures, self.model, self.data, q0, self.lower_limits, self.upper_limits,
+                       np.zeros(self.model.nv, dtype=bool))
+        norms = self._closures.norms(r)
+        if (norms <= self._closure_tol).all():
+            return q
+        gaps = self._closures.gaps(self.data)
+        problems = []
+        for j, norm, (dist, angle) in zip(self.closures, norms, gaps):
+            if norm <= self._closure_tol:
+                continue
+            bodies, joints = self.system.loop(j)
+            loop = " -> ".join("inertial frame" if b is None else b for b in [*bodies, bodies[0]])
+            what = {"revolute": "axes", "prismatic": "orientations", "fixed": "orientations"}.get(j.kind)
+            apart = f"its ends {dist:.3g} apart" + (f" and their {what} {angle:.3g} deg apart" if what else "")
+            if j.kind == "prismatic":
+                apart = f"the child's point {dist:.3g} from the parent's line and the orientations {angle:.3g} deg apart"
+            problems.append(self.spec.diagnostic(
+                j.loc,
+                f"this {j.kind} joint closes the loop {loop}, but the loop cannot be closed near the rest pose: "
+                f"the nearest configuration found leaves {apart}; change the bound vectors of its bodies or the "
+                f"rest values of its joints ({', '.join(t.name for t in joints)})",
+            ))
+        raise SpecError(problems)
+
+    def joint_blocks(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Each Pinocchio joint's coordinates in ``q`` by joint name (a free root's seven as
+        ``root_joint``)."""
+        return {j.name: np.array(q[j.idx_q : j.idx_q + j.nq], dtype=float) for j in self.joints}
+
+    def urdf_values(self, q: np.ndarray) -> dict[str, object]:
+        """The URDF joints' values at ``q`` (the SRDF's group state): revolute angles (radians;
+        in (-pi, pi] without limits), a spherical joint's three angles, prismatic offsets, a
+        free root's 7 numbers (x, y, z, qx, qy, qz, qw)."""
+        out: dict[str, object] = {}
+        for j in self.joints:
+            block = q[j.idx_q : j.idx_q + j.nq]
+            if j.kind == "free":
+                out[ROOT_JOINT] = block.copy()
+            elif j.kind == "spherical":
+                out.update(zip(spherical_parts(j.name)[0], (float(a) for a in xyz_angles(_quaternion_matrix(block)))))
+            elif j.kind == "revolute":
+                out[j.name] = float(block[0]) if j.spec.limits is not None else wrap_angle(float(block[0]))
+            elif j.nq:
+                out[j.name] = float(block[0])
+        return out
 
     # ------------------------------------------------------------------ coordinates
     def coordinates(self, q: np.ndarray) -> np.ndarray:
@@ -396,7 +507,20 @@ class Robot:
         """Rest pose (a Pinocchio ``q``) with every revolute angle moved uniformly within
         +-spread_deg, every spherical joint turned by up to spread_deg about a uniformly
         random axis and every prismatic offset uniform within its limits (at rest without
-        limits); the free root stays at rest."""
+        limits); the free root stays at rest.  With loop closures, that configuration
+        projected onto them (:meth:`project`); where it cannot be closed, another is drawn
+        with half the spread (and prismatic offsets moved half as far from rest)."""
+        share = 1.0
+        while self.closures and share > 1e-6:
+            try:
+                return self.project(self._random_tree(rng, spread_deg * share, share))
+            except RobotError:
+                share *= 0.5
+        return self._random_tree(rng, spread_deg, share) if not self.closures else self.q_rest.copy()
+
+    def _random_tree(self, rng: np.random.Generator, spread_deg: float, share: float) -> np.ndarray:
+        """:meth:`random_configuration` of the joints, closures left open; prismatic offsets
+        ``share`` of the way from rest to their random value."""
         q = self.q_rest.copy()
         for j in self.joints:
             if j.kind == "revolute":
@@ -407,7 +531,8 @@ class Robot:
                 R = pin.exp3(turn) @ _quaternion_matrix(q[j.idx_q : j.idx_q + 4])
                 q[j.idx_q : j.idx_q + 4] = pin.Quaternion(R).coeffs()
             elif j.kind == "prismatic" and np.isfinite(self.lower_limits[j.idx_q]):
-                q[j.idx_q] = rng.uniform(self.lower_limits[j.idx_q], self.upper_limits[j.idx_q])
+                value = rng.uniform(self.lower_limits[j.idx_q], self.upper_limits[j.idx_q])
+                q[j.idx_q] = value if share == 1.0 else q[j.idx_q] + share * (value - q[j.idx_q])
         return q
 
     # ------------------------------------------------------------------ geometry

@@ -22,6 +22,13 @@ Rx(a) Ry(b) Rz(c) R_align.  MuJoCo refuses a moving body without mass: a model w
 spherical joints carries MuJoCo's ``<mujoco><compiler boundmass boundinertia/></mujoco>``
 extension, which other readers ignore.
 
+Loops.  URDF describes a tree: a system with loop closures (``System.closures``) is
+exported as its spanning tree, the header comment says so, and the closures go to a side
+file ``<system>.closures.json`` (:func:`closures_json`: each closure's two frames in its
+links and what must hold between them); the SRDF's rest state is then the rest pose
+closed (``rest`` of :func:`to_srdf`) and it excludes the collisions of each closure's
+two links.
+
 For other tools: a revolute joint the spec leaves unlimited (and each of a spherical
 joint's three) is ``continuous``; a prismatic joint without spec limits has nominal
 ones (:data:`PRISMATIC_LIMIT`: URDF requires them); every movable joint has placeholder
@@ -34,8 +41,9 @@ joints; there a spherical joint is one joint (a quaternion).
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -251,6 +259,10 @@ def to_urdf(system: System, source: str = "", free_root: bool = False) -> str:
     )
     if free_root:
         notes += f" The floating {ROOT_JOINT}'s rest placement is in the SRDF's rest state."
+    if system.closures:
+        notes += (f" The model has kinematic loops, which URDF cannot express: this is its spanning tree, and its "
+                  f"{len(system.closures)} loop closures ({', '.join(j.name for j in system.closures)}) are in "
+                  f"{system.name}.closures.json; the SRDF's rest state closes them.")
     out = [
         '<?xml version="1.0"?>',
         _header(source, notes),
@@ -287,6 +299,59 @@ def _new_joints_note(system: System) -> str:
     return note
 
 
+#: What must hold between a loop closure's two frames, per joint type (closures_json's "holds").
+CLOSURE_CONDITIONS = {
+    "fixed": "the two frames coincide",
+    "spherical": "the two frames' origins coincide",
+    "revolute": "the two frames' origins coincide and their 'axis' vectors (in each frame) are one world "
+                "vector: the child frame turns about it",
+    "prismatic": "the two frames' axes are parallel (equal orientations) and the child frame's origin lies on "
+                 "the line through the parent frame's origin along 'axis'",
+}
+
+
+def closures_json(system: System, source: str = "") -> str:
+    """The loop closures of ``system`` as JSON text (the side file of its spanning-tree URDF):
+    per closure its name, type, parent and child links (``world`` for the inertial frame),
+    each end's frame in its link (``xyz``, ``rpy`` as a URDF origin: the parent end's point
+    with the parent body's axes; the child end's point with the axes R_0j R_alignᵀ, eq.
+    2.12), the joint axis o_ij in both frames, the condition that closes it, and the loop
+    it closes (the links from its parent through the tree to its child)."""
+    closures = []
+    for j in system.closures:
+        o_ij = np.asarray(j.parent_bvec.orient, dtype=float)
+        R_align = alignment_matrix(o_ij, np.asarray(j.child_bvec.orient, dtype=float))
+        frames = {}
+        for side, body, bvec, R in (("parent", j.parent, j.parent_bvec, np.eye(3)),
+                                    ("child", j.child, j.child_bvec, R_align.T)):
+            xyz = np.asarray(bvec.pos, dtype=float) + (centre_offset(system, body) if body is not None else 0.0)
+            frames[side] = {"xyz": [float(num(x)) for x in xyz],
+                            "rpy": [float(num(x)) for x in pin.rpy.matrixToRpy(R)]}
+        bodies, _ = system.loop(j)
+        closures.append({
+            "name": j.name,
+            "type": j.kind,
+            "parent_link": j.parent_link,
+            "child_link": j.child_link,
+            "parent_frame": frames["parent"],
+            "child_frame": frames["child"],
+            "axis": [float(num(x)) for x in o_ij],
+            "holds": CLOSURE_CONDITIONS[j.kind],
+            "loop": [b if b is not None else WORLD for b in bodies],
+            "line": j.loc.line,
+        })
+    doc = {
+        "generated_by": f"kms2pin from {source or 'a spec'}; do not edit",
+        "system": system.name,
+        "urdf": f"{system.name}.urdf",
+        "note": "URDF cannot express a kinematic loop: the URDF is the spanning tree, and each closure here joins "
+                "a frame on its parent link to a frame on its child link (frames as URDF origins in the links' "
+                "frames); the SRDF's rest state closes every loop",
+        "closures": closures,
+    }
+    return json.dumps(doc, indent=2) + "\n"
+
+
 def rest_values(joint: Joint) -> list[tuple[str, float]]:
     """(URDF joint name, rest value) of ``joint``: radians for revolute joints and a spherical
     joint's three angles (Exp(r) = Rx Ry Rz), spec length units for a prismatic joint; none
@@ -301,12 +366,14 @@ def rest_values(joint: Joint) -> list[tuple[str, float]]:
     return []
 
 
-def to_srdf(system: System, source: str = "", free_root: bool = False) -> str:
+def to_srdf(system: System, source: str = "", free_root: bool = False, rest: Mapping[str, object] | None = None) -> str:
     """SRDF text: a group with every joint, the "rest" group state (default angles,
     radians; ROS/MoveIt convention read by pinocchio.loadReferenceConfigurations) and
-    adjacent-link collision exclusions.  With ``free_root`` the floating root is also a
-    ``virtual_joint`` and its rest placement is the state's ``x y z qx qy qz qw`` value
-    (Pinocchio's free-flyer order, as MoveIt's floating joint)."""
+    adjacent-link collision exclusions (a loop closure's two links too).  With
+    ``free_root`` the floating root is also a ``virtual_joint`` and its rest placement is
+    the state's ``x y z qx qy qz qw`` value (Pinocchio's free-flyer order, as MoveIt's
+    floating joint).  ``rest``: the state's values by URDF joint name instead of the
+    spec's (a model with loops: the rest pose closed, :meth:`kms2pin.Robot.urdf_values`)."""
     joints = [j for j in system.joints if not (free_root and j.parent is None)]
     group = attr(system.name)
     lines = ['<?xml version="1.0"?>', _header(source), f"<robot name={group}>"]
@@ -321,11 +388,13 @@ def to_srdf(system: System, source: str = "", free_root: bool = False) -> str:
     lines.append("  </group>")
     lines.append(f'  <group_state name="rest" group={group}>')
     if free_root:
-        lines.append(f'    <joint name="{ROOT_JOINT}" value="{vec(pin.SE3ToXYZQUAT(root_rest_placement(system)))}"/>')
-    lines += [f"    <joint name={attr(n)} value=\"{num(v)}\"/>" for j in joints for n, v in rest_values(j)]
+        root = pin.SE3ToXYZQUAT(root_rest_placement(system)) if rest is None else rest[ROOT_JOINT]
+        lines.append(f'    <joint name="{ROOT_JOINT}" value="{vec(root)}"/>')
+    values = [(n, v if rest is None else rest[n]) for j in joints for n, v in rest_values(j)]
+    lines += [f"    <joint name={attr(n)} value=\"{num(v)}\"/>" for n, v in values]
     lines.append("  </group_state>")
-    for j in system.joints:
-        if j.parent is not None:
+    for j in (*system.joints, *system.closures):
+        if j.parent is not None and j.child is not None:
             lines.append(f"  <disable_collisions link1={attr(j.parent)} link2={attr(j.child)} reason=\"Adjacent\"/>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"

@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from .closures import column_order, least_norm, project
 from .errors import RobotError, TargetError, did_you_mean
 from .native import kernels
 from .robot import Robot
@@ -179,6 +180,8 @@ class _Structure:
             # (q indices, v indices, lower, upper, and the values at or below / above which a
             # coordinate counts as at its limit)
             self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
+        # loop closures: the column order of their curvature (kms2pin.closures.column_order)
+        self.order = column_order(model) if robot.closures else None
 
 
 _STRUCTURES: weakref.WeakKeyDictionary[Robot, _Structure] = weakref.WeakKeyDictionary()
@@ -277,7 +280,10 @@ def static_update(
             quaternion), with the same message.
 
     Spherical joints (and a free root) are integrated on their manifold
-    (``pin.integrate``).  Joint limits from the spec (``revolute(a, b, angle, lower,
+    (``pin.integrate``).  With loop closures (``robot.closures``) the start is projected
+    onto them and the equilibrium is sought on the closed configurations (the thesis's
+    coordinate partitioning, §2.3.2: :func:`_closed_static_update`); ``residual`` is then
+    ||B^T Q|| along them.  Joint limits from the spec (``revolute(a, b, angle, lower,
     upper)`` and ``prismatic(a, b, offset, lower, upper)``, not in the thesis) are kept: the start is clipped into them, every step is projected onto
     them, and a joint held at a limit by a force pushing it outwards drops out of the
     Newton system (projected Levenberg-Marquardt); the equilibrium is then B^T Q = 0
@@ -291,6 +297,8 @@ def static_update(
     tgt, mask = target_array(robot, targets)
     k = stiffness_array(robot, stiffness, mask)
     ev = _Evaluator(robot, tgt, k)
+    if robot.closures:
+        return _closed_static_update(robot, q_in, ev, max_iter, tol)
     nv = robot.model.nv
     step = np.empty(nv)
     bounds = ev.s.limits
@@ -313,25 +321,12 @@ def static_update(
             break
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
-        scale = max(hmax, 1e-12)
-        accepted = False
-        for _ in range(40):
-            if not kernels.solve_shifted(H, grad, lam * scale, step):  # not positive definite
-                lam = max(lam * 10.0, 1e-8)
-                continue
-            if not step @ grad < 0:  # not a descent direction: H + lam I is not positive definite
-                lam = max(lam * 10.0, 1e-8)
-                continue
+        def trial(step, q=q):
             q_new = pin.integrate(robot.model, q, step)
-            if bounds is not None:
-                q_new = robot.clamp(q_new)
-            lin = ev.linearize_full(q_new)
-            if lin[0] <= energy + 1e-15 * max(1.0, energy):
-                accepted = True
-                lam = max(lam * 0.1, 1e-12)
-                break
-            lam = max(lam * 10.0, 1e-8)
-        if not accepted:
+            return robot.clamp(q_new) if bounds is not None else q_new
+
+        lam, q_new, lin = _levenberg_marquardt(H, grad, lam, max(hmax, 1e-12), energy, step, trial, ev.linearize_full)
+        if q_new is None:
             message = "no step decreases the energy further"
             break
         q = q_new
@@ -343,6 +338,120 @@ def static_update(
     rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
     return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
+
+
+def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_iter: int,
+                          tol: float) -> StaticUpdateResult:
+    """:func:`static_update` on the configurations that close every loop: Levenberg-Marquardt
+    on the Newton system reduced to the closures' null space (B = N, :func:`_closed_system`;
+    the Hessian with the constraints' curvature Σ λ ∇²c at the spring forces'
+    multipliers), each step brought back onto the closures by Gauss-Newton.  Joints at a
+    limit and pushed outwards are held (rows of A)."""
+    held = np.zeros(robot.nv, dtype=bool)
+    q = _closed_step(robot, q_in, np.zeros(robot.nv), held, ev.s.limits is not None)
+    if q is None:
+        raise TargetError(f"the loops of '{robot.system.name}' cannot be closed from the start configuration q")
+    lin = ev.linearize_full(q)
+    system = _closed_system(robot, ev.s, q, lin[1], lin[2])
+    lam, it, converged, message = 1e-8, 0, False, "iteration limit reached"
+    while True:
+        H, g, N, held, gsq, second = system
+        if gsq <= tol * tol:
+            converged, message = True, "||B^T Q|| below tolerance"
+            break
+        if it >= max_iter:
+            break
+        it += 1
+        def trial(z, q=q, N=N, held=held, second=second):
+            return _closed_step(robot, q, second(N @ z), held, ev.s.limits is not None)
+
+        scale = max(float(H.diagonal().max(initial=0.0)), 1e-12)
+        lam, q_try, lin_try = _levenberg_marquardt(H, g, lam, scale, lin[0], np.empty(len(g)), trial,
+                                                   ev.linearize_full)
+        if q_try is None:
+            message = "no step decreases the energy further"
+            break
+        q, lin = q_try, lin_try
+        system = _closed_system(robot, ev.s, q, lin[1], lin[2])
+    rev = ev.s.unlimited_revolute_q
+    q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
+    return StaticUpdateResult(q, converged, it, math.sqrt(system[4]), lin[0], ev.forces(lin[3], lin[4]), message)
+
+
+def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, limited: bool) -> np.ndarray | None:
+    """``pin.integrate(q, dq)`` (clipped into the joint limits if ``limited``) brought back
+    onto the closures by Gauss-Newton (:func:`kms2pin.closures.project`, to a tenth of their
+    tolerance), or None if they cannot be closed there."""
+    model, data = robot.model, robot.data
+    q_new = pin.integrate(model, q, dq)
+    if limited:
+        q_new = robot.clamp(q_new)
+    q_new, r = project(robot._closures, model, data, q_new, robot.lower_limits, robot.upper_limits, held,
+                       0.1 * robot._closure_tol)
+    return q_new if np.abs(r).max(initial=0.0) <= 0.1 * robot._closure_tol else None
+
+
+def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray, H: np.ndarray,
+                   newton: bool = True) -> tuple:
+    """The Newton system at a closed ``q`` reduced to the closures' null space (the thesis's
+    coordinate partitioning, §2.3.2, with an orthonormal basis N for B_di): (Nᵀ (H + Σ λ
+    ∇²c) N, Nᵀ g, N, the held columns, |Nᵀ g|², the second-order correction of a step) from
+    the gradient ``grad`` and Newton matrix ``H`` at ``q`` (``robot.data`` after
+    ``pin.computeJointJacobians`` there; ``kernels.nullspace_system``).  ``newton=False``:
+    Gauss-Newton, Nᵀ H N without the curvature (positive semi-definite with H).  λ and the held
+    limits come from the least-squares multipliers of g + Aᵀ μ = 0 over the closures' rows
+    and the joints at a limit (held where μ pushes outwards)."""
+    model, data, C = robot.model, robot.data, robot._closures
+    _, Jc, curvature = C.system(model, data, 2, s.order)
+    nv = model.nv
+    held = np.zeros(nv, dtype=bool)
+    bounds = s.limits
+    if bounds is not None:
+        iq, iv, _, _, lo_at, hi_at = bounds
+        low, high = q[iq] <= lo_at, q[iq] >= hi_at
+        if (low | high).any():  # a limit holds where its multiplier pushes outwards
+            at = iv[low | high]
+            mu = _reduce(np.vstack([Jc, np.eye(nv)[at]]), grad, H, curvature)[4][len(Jc):]
+            held[at[np.where(low[low | high], mu < 0, mu > 0)]] = True
+    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H,
+                              curvature if newton else curvature[:0])
+    if held.any():
+        Jc[:, held] = 0.0
+
+    def second(dq: np.ndarray) -> np.ndarray:
+        """``dq`` (along the closures) plus its second-order correction: the least-norm δ with
+        Jc δ = -½ dqᵀ ∇²c dq, so that the closures hold to third order at q ⊕ (dq + δ)."""
+        v = 0.5 * (curvature.reshape(len(Jc), -1) @ np.outer(dq, dq).ravel())
+        return dq + least_norm(Jc, v)
+
+    return Hr[:k, :k], gr[:k], N[:, :k], held, float(gr @ gr), second
+
+
+def _reduce(A: np.ndarray, grad: np.ndarray, H: np.ndarray, curvature: np.ndarray):
+    """(k, N, Hr, gr, λ) of ``kernels.nullspace_system`` for the constraints A dq = 0."""
+    nv = len(grad)
+    N, Hr, gr, lam = np.empty((nv, nv)), np.empty((nv, nv)), np.empty(nv), np.empty(len(A))
+    rank = kernels.nullspace_system(A, grad, H, curvature, N, Hr, gr, lam)
+    return nv - rank, N, Hr, gr, lam
+
+
+def _levenberg_marquardt(H: np.ndarray, grad: np.ndarray, lam: float, scale: float, energy: float,
+                         step: np.ndarray, trial, evaluate):
+    """One Levenberg-Marquardt search: the step of (H + lam scale I) step = -grad (in the
+    buffer ``step``), lam raised tenfold while H + lam I is not positive definite, the step
+    is no descent direction, ``trial(step)`` has no configuration (None) or ``evaluate``'s
+    energy (its first value) there is above ``energy``; lam lowered tenfold once one is
+    accepted.  Returns (lam, configuration, ``evaluate``'s result), or (lam, None, None)
+    after 40 tries."""
+    for _ in range(40):
+        if kernels.solve_shifted(H, grad, lam * scale, step) and step @ grad < 0:
+            q_new = trial(step)
+            if q_new is not None:
+                lin = evaluate(q_new)
+                if lin[0] <= energy + 1e-15 * max(1.0, energy):
+                    return max(lam * 0.1, 1e-12), q_new, lin
+        lam = max(lam * 10.0, 1e-8)
+    return lam, None, None
 
 
 def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
@@ -429,7 +538,8 @@ def pose_spring_update(
     :data:`BACKTRACK` times, and if none lowers it the update stops there.  Joints at
     a spec limit that the step pushes further are held there and the step is solved
     for the others (projected Gauss-Newton's active set); every step is clipped into
-    the limits.
+    the limits.  With loop closures the start is projected onto them and every step is
+    taken along them (:func:`_closed_pose_spring_update`).
 
     Args:
         robot: the loaded system.
@@ -464,6 +574,8 @@ def pose_spring_update(
             energy += t.add(A, g, q, data, k)
         return A, g, energy
 
+    if robot.closures:
+        return _closed_pose_spring_update(robot, q, springs, iterations)
     A, g, energy = springs(q)
     for _ in range(iterations):
         dq = _newton_step(A, g)
@@ -476,18 +588,56 @@ def pose_spring_update(
                 free = ~blocked
                 dq = np.zeros(nv)
                 dq[free] = _newton_step(np.ascontiguousarray(A[np.ix_(free, free)]), g[free])
-        for _ in range(BACKTRACK + 1):
+        def trial(dq, q=q):
             q_new = pin.integrate(model, q, dq)
-            if limited:  # projected Gauss-Newton: the spec's joint limits
-                q_new = robot.clamp(q_new)
+            return robot.clamp(q_new) if limited else q_new  # projected Gauss-Newton: the spec's joint limits
+
+        found = _backtracked(springs, energy, dq, trial)
+        if found is None:
+            break  # no step lowers the energy: q is (close to) a minimum
+        q, A, g, energy, dq = found
+        if np.abs(dq).max() < 1e-7:
+            break
+    return q
+
+
+def _backtracked(springs, energy: float, step: np.ndarray, trial):
+    """The first of ``step``, ``step / 2``, ... (:data:`BACKTRACK` halvings) whose ``trial``
+    configuration (None: none there) has a spring energy no higher than ``energy``:
+    (configuration, its A, g and energy, the step), or None."""
+    for _ in range(BACKTRACK + 1):
+        q_new = trial(step)
+        if q_new is not None:
             A_new, g_new, e_new = springs(q_new)
             if e_new <= energy * (1.0 + 1e-12):
-                break
-            dq = 0.5 * dq
-        else:
+                return q_new, A_new, g_new, e_new, step
+        step = 0.5 * step
+    return None
+
+
+def _closed_pose_spring_update(robot: Robot, q: np.ndarray, springs, iterations: int) -> np.ndarray:
+    """:func:`pose_spring_update` along the loop closures: the start projected onto them,
+    then Gauss-Newton steps on the system reduced to their null space (:func:`_closed_system`;
+    joints at a limit and pushed outwards held), each corrected to second order, brought
+    back onto them and halved while it raises the energy.  A start that
+    cannot be closed is returned as it is."""
+    s = _structure(robot)
+    limited = s.limits is not None
+    q_start = _closed_step(robot, q, np.zeros(robot.nv), np.zeros(robot.nv, dtype=bool), limited)
+    if q_start is None:
+        return q
+    q = q_start
+    A, g, energy = springs(q)
+    for _ in range(iterations):
+        H, gr, N, held, _, second = _closed_system(robot, s, q, g, A, newton=False)
+        def trial(z, q=q, N=N, held=held, second=second):
+            return _closed_step(robot, q, second(N @ z), held, limited)
+
+        found = _backtracked(springs, energy, _newton_step(H, gr), trial)
+        if found is None:
             break  # no step lowers the energy: q is (close to) a minimum
-        q, A, g, energy = q_new, A_new, g_new, e_new
-        if np.abs(dq).max() < 1e-7:
+        q, A, g, energy, z = found
+        if np.abs(N @ z).max() < 1e-7:
             break
     return q
 

@@ -10,13 +10,25 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from kms2pin import parse
 from kms2pin.model import alignment_matrix
 from kms2pin.robot import Robot
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 #: Every spec of the repository: the thesis's four, the two with joint limits, ours (human,
-#: gantry: spherical and prismatic joints).
+#: gantry: spherical and prismatic joints; fourbar, delta, stewart: kinematic loops).
 ALL_SPECS = sorted(SPECS.rglob("*.kms"))
+
+
+def _one_joint_to_the_inertial_frame(path: Path) -> bool:
+    return all(len(s.children(None)) == 1 for s in parse(path).systems)
+
+
+#: The (spec, root) pairs the export tests run: every spec with its own root, and with a free
+#: root where the spec has one joint to the inertial frame (the loop mechanisms are anchored
+#: to it at several points).
+EXPORT_CASES = [(p, "spec") for p in ALL_SPECS] + [(p, "free") for p in ALL_SPECS
+                                                   if _one_joint_to_the_inertial_frame(p)]
 
 
 def check_urdf_exe() -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from conftest import SPECS
 
-from kms2pin import SpecError, parse_text
+from kms2pin import SpecError, load, parse_text
 from kms2pin.cli import main
 from kms2pin.errors import Diagnostic
 
@@ -353,20 +353,46 @@ def test_two_joints_between_the_same_bodies():
     )
 
 
-def test_kinematic_loop_names_its_bodies():
-    text = edit(
-        "    constraint revolute(leftShin.knee, leftThigh.knee, 20);\n",
-        "    constraint revolute(leftShin.knee, leftThigh.knee, 20);\n"
-        "    constraint fixed(pelvis.anchor, leftShin.hip);\n",
-    )
-    d = only(text, "kinematic loop: this joint closes the loop", "constraint fixed", exact=False)
-    assert "pelvis -> leftThigh -> leftShin -> pelvis" in d.message
+def loop_error(text: str, needle: str) -> Diagnostic:
+    """A spec the language accepts whose one loop cannot be closed at rest: loading it (and
+    ``kms2pin check``) reports it once, at ``needle``, compiler-style."""
+    spec = parse_text(text, "walker.kms")
+    with pytest.raises(SpecError) as err:
+        load(spec)
+    (d,) = err.value.diagnostics
+    assert (d.line, d.column) == where(text, needle)
+    assert d.source_line == text.splitlines()[d.line - 1]
+    assert cli_report(text) == [f"{{path}}:{d.line}:{d.column}: error: {d.message}", *shown(d.source_line, d.column)]
+    return d
 
 
-def test_kinematic_loop_through_the_inertial_frame():
-    text = BASE + "constraint fixed(walker.leftShin.hip, origin);\n"
-    d = only(text, "kinematic loop", "constraint fixed(walker", exact=False)
-    assert "inertial frame" in d.message and "leftShin" in d.message
+KNEE = "    constraint revolute(leftShin.knee, leftThigh.knee, 20);\n"
+
+
+def test_a_loop_that_cannot_close_at_rest_names_its_bodies_its_gap_and_the_joints_to_change():
+    # breadth first from the pelvis, the fixed joint reaches the shin before the knee does:
+    # the knee closes the loop
+    text = edit(KNEE, "    constraint revolute(leftShin.knee, leftThigh.knee);\n"
+                      "    constraint fixed(pelvis.anchor, leftShin.hip);\n")
+    d = loop_error(text, "constraint revolute(leftShin")
+    assert "this revolute joint closes the loop leftShin -> pelvis -> leftThigh -> leftShin" in d.message
+    assert "cannot be closed near the rest pose" in d.message
+    assert "apart and their axes" in d.message
+    assert "(leftShin_hip, leftThigh_hip)" in d.message
+
+
+def test_a_loop_through_the_inertial_frame_that_cannot_close():
+    text = edit(KNEE, "    constraint revolute(leftShin.knee, leftThigh.knee);\n") + \
+        "constraint fixed(walker.leftShin.hip, origin);\n"
+    d = loop_error(text, "constraint revolute(leftShin")
+    assert "closes the loop leftShin -> inertial frame -> pelvis -> leftThigh -> leftShin" in d.message
+
+
+def test_a_loop_closing_joint_with_a_rest_value_is_refused_at_the_value():
+    text = edit(KNEE, KNEE + "    constraint fixed(pelvis.anchor, leftShin.hip);\n")
+    only(text, "this revolute joint closes a kinematic loop, and a loop-closing joint takes no rest value or "
+               "limits: its value follows from the joints of the tree (leave them out, or write the joints so "
+               "that another one closes the loop)", "20);")
 
 
 def test_a_joint_from_a_body_to_itself():

@@ -10,12 +10,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from _interop import ALL_SPECS, SPECS, body_frame, mujoco_kinematics, mujoco_qpos, random_q
+from _interop import EXPORT_CASES, SPECS, body_frame, mujoco_kinematics, mujoco_qpos, random_q
 
 import kms2pin
 from kms2pin.cli import main
 
-CASES = [(p, root) for p in ALL_SPECS for root in ("spec", "free")]
+CASES = EXPORT_CASES
 TOL = 1e-9
 
 

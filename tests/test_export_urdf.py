@@ -16,6 +16,7 @@ import pinocchio as pin
 import pytest
 from _interop import (
     ALL_SPECS,
+    EXPORT_CASES,
     body_frame,
     check_urdf_exe,
     mujoco_kinematics,
@@ -30,7 +31,7 @@ import kms2pin
 from kms2pin.cli import main
 from kms2pin.urdf import OUTER_RGBA
 
-CASES = [(p, root) for p in ALL_SPECS for root in ("spec", "free")]
+CASES = EXPORT_CASES
 TOL = 1e-9
 
 

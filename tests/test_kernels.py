@@ -191,7 +191,40 @@ def _solve_shifted(rng, definite=True, shift=0.0):
     return [H, rng.normal(size=7), shift, np.full(7, 3.0)], (3,)
 
 
+def _closure_terms(rng, what=2):
+    """Random dot-product terms of loop closures: 4 ends, 12 terms on 5 rows, 9 columns."""
+    E, T, rows, nv = 4, 12, 5, 9
+    moving = (rng.random((E, nv)) < 0.6).astype(float)
+    kind = rng.integers(0, 3, (T, 2)).astype(float)
+    end = rng.integers(0, E, (T, 2)).astype(float)
+    row = rng.integers(0, rows, T).astype(float)
+    order = np.triu(np.ones((nv, nv)), 1)
+    order[:3, :3] = 0.5  # a three-column joint
+    Jc = np.empty((rows, nv)) if what >= 1 else np.empty((0, 0))
+    H = np.empty((rows, nv, nv)) if what >= 2 else np.empty((0, 0, 0))
+    args = [rng.normal(size=(6, nv)), _coords(rng, E), moving, kind, end, rng.normal(size=(T, 6)), row,
+            rng.normal(size=T), order, np.empty(rows), Jc, H, what]
+    return args, (9, 10, 11)
+
+
+def _nullspace_system(rng, m=5, nv=9, dependent=False):
+    A = rng.normal(size=(m, nv))
+    if dependent:  # a row that repeats two others' sum, and a zero row
+        A[2], A[3] = A[0] + A[1], 0.0
+    M = rng.normal(size=(nv, nv))
+    C = rng.normal(size=(max(m - 1, 0), nv, nv))
+    args = [A, rng.normal(size=nv), M @ M.T, C + C.transpose(0, 2, 1), np.empty((nv, nv)), np.empty((nv, nv)),
+            np.empty(nv), np.empty(m)]
+    return args, (4, 5, 6, 7)
+
+
 CASES: dict[str, Callable] = {
+    "closure_terms": _closure_terms,
+    "closure_terms-residual": lambda rng: _closure_terms(rng, what=0),
+    "closure_terms-jacobian": lambda rng: _closure_terms(rng, what=1),
+    "nullspace_system": _nullspace_system,
+    "nullspace_system-dependent-rows": lambda rng: _nullspace_system(rng, m=6, dependent=True),
+    "nullspace_system-more-rows-than-columns": lambda rng: _nullspace_system(rng, m=7, nv=4),
     "linearize": _linearize,
     "linearize-gauss-newton-one-k": lambda rng: _linearize(rng, hessian=False, one_k=True),
     "frame_coordinates": _frame_coordinates,

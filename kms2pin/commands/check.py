@@ -1,5 +1,8 @@
 """Check a spec and print each system's body tree: joint type, degrees of freedom, axis,
-rest pose (angle, rotation or offset) and limits."""
+rest pose (angle, rotation or offset) and limits; then each loop closure and the loop it
+closes.  A system with loops is loaded, so a loop that cannot be closed at rest is an error
+here too, and its degrees of freedom are those left once the loops are closed (the tree's
+less the rank of the closures' constraints at rest)."""
 
 from __future__ import annotations
 
@@ -7,6 +10,7 @@ import argparse
 import json
 
 from ..model import Joint, ModelSpec, System
+from ..robot import Robot
 from ._common import add_spec_argument, read_model
 
 NAME = "check"
@@ -22,8 +26,9 @@ def _vec(v) -> str:
     return "(" + ", ".join(f"{x:.3g}" for x in v) + ")"
 
 
-def describe(spec: ModelSpec) -> dict:
-    """The body tree of every system as plain data (what ``check --json`` prints)."""
+def describe(spec: ModelSpec, mobility: dict[str, int] | None = None) -> dict:
+    """The body tree and loop closures of every system as plain data (what ``check --json``
+    prints); ``mobility``: the degrees of freedom of each system with loops, by name."""
     systems = []
     for s in spec.systems:
         bodies = []
@@ -52,8 +57,19 @@ def describe(spec: ModelSpec) -> dict:
             "bodies": bodies,
             "dof": s.dof,
             **{f"{kind}_joints": s.count(kind) for kind in KINDS},
+            "closures": [_closure_fields(s, j) for j in s.closures],
+            "mobility": (mobility or {}).get(s.name, s.dof),
         })
     return {"path": spec.path, "systems": systems}
+
+
+def _closure_fields(system: System, j: Joint) -> dict:
+    """A loop closure as plain data: its ends, the bodies of its loop (None: the inertial
+    frame) and the tree joints on it."""
+    bodies, joints = system.loop(j)
+    return {"name": j.name, "type": j.kind, "parent": j.parent, "child": j.child,
+            "parent_bvec": j.parent_bvec.qualified_name, "child_bvec": j.child_bvec.qualified_name,
+            "loop": bodies, "loop_joints": [t.name for t in joints], "line": j.loc.line}
 
 
 KINDS = ("revolute", "spherical", "prismatic", "fixed")
@@ -106,13 +122,33 @@ def _counts(system: System) -> str:
     return ", ".join(f"{system.count(k)} {k}" for k in shown) + " joints"
 
 
+def _closures(system: System) -> list[str]:
+    """Each loop closure: its joint and the loop it closes."""
+    lines = ["loop closures:"]
+    for k, j in enumerate(system.closures):
+        bodies, _ = system.loop(j)
+        loop = " -> ".join("inertial frame" if b is None else b for b in [*bodies, bodies[0]])
+        lines.append(f"{'└─ ' if k == len(system.closures) - 1 else '├─ '}{j.name}  [{j.kind}, "
+                     f"{j.parent_bvec.qualified_name} -> {j.child_bvec.qualified_name}] closes {loop}")
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     spec = read_model(args.spec)
+    # a system with loops is loaded: its rest pose must close them, and its mobility is numerical
+    mobility = {s.name: Robot(spec, s).mobility for s in spec.systems if s.closures}
     if args.json:
-        print(json.dumps(describe(spec), indent=2))
+        print(json.dumps(describe(spec, mobility), indent=2))
         return 0
     for s in spec.systems:
-        print(f"{spec.path}: rigidBodySystem '{s.name}': {len(s.bodies)} bodies, "
-              f"{s.dof} degrees of freedom ({_counts(s)})")
+        dof = f"{s.dof} degrees of freedom ({_counts(s)})"
+        if s.closures:
+            n = len(s.closures)
+            m = mobility[s.name]
+            dof = (f"{m} degree{'s' if m != 1 else ''} of freedom with its {n} loop{'s' if n > 1 else ''} closed "
+                   f"({s.dof} in its tree: {_counts(s)}; {n} loop closure{'s' if n > 1 else ''})")
+        print(f"{spec.path}: rigidBodySystem '{s.name}': {len(s.bodies)} bodies, {dof}")
         print("\n".join(_tree(s)))
+        if s.closures:
+            print("\n".join(_closures(s)))
     return 0

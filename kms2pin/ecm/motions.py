@@ -18,7 +18,10 @@ its range (its limits, or the model's height without them).
   a spherical joint about all three axes at once; +-15 % of a prismatic range).
 
 Revolute angles and prismatic offsets stay within the spec's joint limits, where it
-gives them (clipped).
+gives them (clipped).  A model with loop closures moves the same way, each frame then
+projected onto the closures (:meth:`Robot.project`) from the last frame moved by the
+motion's step, so the closing joints follow and the motion stays continuous; a frame the
+loops cannot reach keeps the last one.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from ..errors import Kms2pinError
+from ..errors import Kms2pinError, RobotError
 from ..robot import JointCoordinates, Robot
 
 MOTIONS = ("sweep", "walk", "random")
@@ -194,16 +197,36 @@ def random_smooth(robot: Robot, frames: int, rng: np.random.Generator) -> np.nda
     return q
 
 
+def closed_motion(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """Configurations ``q`` (T, nq) projected onto the loop closures frame by frame: frame f
+    from frame f - 1's projection moved by the step q[f - 1] -> q[f] (tangent space), so a
+    continuous motion stays continuous; a frame that cannot be closed repeats the last.
+    ``q`` itself for a tree."""
+    if not robot.closures or not len(q):
+        return q
+    model = robot.model
+    out = np.empty_like(q)
+    out[0] = robot.project(q[0])
+    for f in range(1, len(q)):
+        try:
+            out[f] = robot.project(pin.integrate(model, out[f - 1], pin.difference(model, q[f - 1], q[f])))
+        except RobotError:
+            out[f] = out[f - 1]
+    return out
+
+
 def make_motion(
     robot: Robot, name: str, frames: int, rng: np.random.Generator | None = None
 ) -> np.ndarray:
-    """Configurations (frames, nq) of motion ``name`` (one of :data:`MOTIONS`)."""
+    """Configurations (frames, nq) of motion ``name`` (one of :data:`MOTIONS`), projected
+    onto the loop closures of a model that has some (:func:`closed_motion`)."""
     if frames < 1:
         raise Kms2pinError(f"a motion needs at least one frame, not {frames}")
     if name == "sweep":
-        return robot.clamp(sweep(robot, frames))
+        return closed_motion(robot, robot.clamp(sweep(robot, frames)))
     if name == "walk":
-        return robot.clamp(walk(robot, frames))
+        return closed_motion(robot, robot.clamp(walk(robot, frames)))
     if name == "random":
-        return robot.clamp(random_smooth(robot, frames, rng if rng is not None else np.random.default_rng(0)))
+        q = random_smooth(robot, frames, rng if rng is not None else np.random.default_rng(0))
+        return closed_motion(robot, robot.clamp(q))
     raise Kms2pinError(f"unknown motion '{name}'; choose one of {', '.join(MOTIONS)}")

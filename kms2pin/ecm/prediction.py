@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..errors import RobotError
 from ..robot import Robot
 from .camera import Camera
 
@@ -58,10 +59,17 @@ class Motion:
 
     def predict(self, cur: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
         """``cur`` moved on by the capped motion from ``prev`` (constant velocity), clipped
-        into the joint limits; ``cur`` itself without a ``prev``."""
+        into the joint limits, and with loop closures projected back onto them (``cur``
+        where they cannot be closed there); ``cur`` itself without a ``prev``."""
         if prev is None:
             return cur
-        return self.robot.clamp(pin.integrate(self.robot.model, cur, self.velocity(prev, cur)))
+        q = self.robot.clamp(pin.integrate(self.robot.model, cur, self.velocity(prev, cur)))
+        if self.robot.closures:
+            try:
+                q = self.robot.project(q)
+            except RobotError:
+                q = cur
+        return q
 
 
 def outline_points(Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray) -> np.ndarray:

@@ -170,6 +170,7 @@ class _JointB:
     limits: tuple[float, float] | None = None
     rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     offset: float = 0.0
+    value_loc: Loc | None = None  # the rest value's argument, if given
 
 
 @dataclass
@@ -234,6 +235,7 @@ class Analyzer:
 
     def __init__(self, text: str, path: str):
         self.path = path
+        self.text = text
         self.lines = text.splitlines()
         self.diags: list[list[Diagnostic]] = []  # each error with its notes
         self.systems: list[_SystemB] = []
@@ -271,7 +273,7 @@ class Analyzer:
             ordered = sorted(unique.values(), key=lambda ds: (ds[0].line, ds[0].column))
             raise SpecError([d for ds in ordered for d in ds])
         inertial = {n: self.freeze_bvec(b) for n, b in self.inertial.items()}
-        return ModelSpec(tuple(systems), inertial, self.path)
+        return ModelSpec(tuple(systems), inertial, self.path, self.text)
 
     def exec_block(self, stmts: Iterable[A.Node], scope: _Scope, ctx: _Ctx) -> None:
         for s in stmts:
@@ -556,6 +558,7 @@ class Analyzer:
                 raise _Fail(node.loc, f"{what} must be a double ({unit}), not {t}")
             values.append(float(v))
         joint = _JointB(s.kind, (ends[0], ends[1]), 0.0, s.loc, (s.args[0].loc, s.args[1].loc))
+        joint.value_loc = s.args[2].loc if len(s.args) > 2 else None
         if s.kind == "spherical":
             joint.rotation = tuple(values) if values else (0.0, 0.0, 0.0)
         elif s.kind == "prismatic":
@@ -886,25 +889,16 @@ class Analyzer:
         )
 
     def build_system(self, sb: _SystemB) -> System | None:
-        """Check the joint graph of one system and orient it as a tree (thesis §3.2.1)."""
+        """Check the joint graph of one system and orient it as a spanning tree plus loop
+        closures (thesis §3.2.1, §4.2): breadth first from the inertial frame, each body's
+        joints in spec order; a joint that reaches a body already reached closes a loop."""
         joints = [j for j in self.joints if self.joint_system(j) is sb]
         bad = False
-        # edges keyed by unordered node pair; node None = inertial frame
-        parent_of: dict[str | None, str | None] = {}
         adjacency: dict[str | None, list[tuple[str | None, _JointB]]] = {None: []}
         for b in sb.bodies:
             adjacency[b] = []
         seen_pairs: dict[frozenset, _JointB] = {}
-        uf = {n: n for n in adjacency}
-
-        def find(x):
-            while uf[x] != x:
-                uf[x] = uf[uf[x]]
-                x = uf[x]
-            return x
-
-        tree_edges: list[_JointB] = []
-        for j in joints:
+        for j in joints:  # in spec order
             a = j.ends[0].body.name if j.ends[0].body else None
             b = j.ends[1].body.name if j.ends[1].body else None
             if a == b:
@@ -918,93 +912,105 @@ class Analyzer:
                 bad = True
                 continue
             seen_pairs[pair] = j
-            ra, rb = find(a), find(b)
-            if ra == rb:
-                cycle = self.tree_path(adjacency, a, b)
-                shown = " -> ".join("inertial frame" if n is None else n for n in cycle + [cycle[0]])
-                self.error(
-                    j.loc,
-                    f"kinematic loop: this joint closes the loop {shown}; loops are not supported "
-                    "(a later version will support them)",
-                )
-                bad = True
-                continue
-            uf[ra] = rb
             bad = bad or j.ends[0].poisoned or j.ends[1].poisoned
             adjacency[a].append((b, j))
             adjacency[b].append((a, j))
-            tree_edges.append(j)
-        # preorder traversal from the inertial frame
-        order: list[str] = []
-        tree_joints: list[_JointB] = []
-        parents: list[str | None] = []
-
-        rank = {id(j): i for i, j in enumerate(self.joints)}
-        parent_of[None] = None
-        # preorder, each node's joints in spec order; a stack of iterators, not recursion,
-        # so a chain of any length is traversed
-        stack = [(None, iter(sorted(adjacency[None], key=lambda t: rank[id(t[1])])))]
-        while stack:
-            node, todo = stack[-1]
-            for other, j in todo:
-                if other in parent_of:
-                    continue
-                parent_of[other] = node
-                order.append(other)
-                tree_joints.append(j)
-                parents.append(node)
-                stack.append((other, iter(sorted(adjacency[other], key=lambda t: rank[id(t[1])]))))
-                break
-            else:
-                stack.pop()
+        children, closures = self.spanning_tree(adjacency)
         if not adjacency[None]:
             if not self.constraint_failed:
                 self.error(sb.loc, f"rigidBodySystem '{sb.name}' has no joint to the inertial frame")
             return None
+        # preorder, each body's children in spec order; an explicit stack, not recursion,
+        # so a chain of any length is traversed
+        order: list[tuple[str, _JointB, str | None]] = []
+        stack = [(c, j, None) for c, j in reversed(children[None])]
+        while stack:
+            child, j, parent = stack.pop()
+            order.append((child, j, parent))
+            stack.extend((c, k, child) for c, k in reversed(children.get(child, [])))
+        reached = {name for name, _, _ in order}
         for name, body in sb.bodies.items():
-            if name not in parent_of and not body.poisoned and not self.constraint_failed:
+            if name not in reached and not body.poisoned and not self.constraint_failed:
                 self.error(
                     body.loc,
                     f"body '{name}' has no path to the inertial frame (no chain of joints connects it)",
                     body.calls,
                 )
                 bad = True
-        if bad or self.diags or any(sb.bodies[n].poisoned for n in order):
+        for j in closures:
+            if j.value_loc is not None:
+                self.error(j.value_loc, f"this {j.kind} joint closes a kinematic loop, and a loop-closing joint takes "
+                                        "no rest value or limits: its value follows from the joints of the tree "
+                                        "(leave them out, or write the joints so that another one closes the loop)")
+                bad = True
+        if bad or self.diags or any(sb.bodies[n].poisoned for n, _, _ in order):
             return None  # with any error there is no model (and bvecs may be incomplete)
+        return self.frozen_system(sb, order, closures)
+
+    def spanning_tree(self, adjacency: Mapping[str | None, list[tuple[str | None, _JointB]]]):
+        """Breadth first from the inertial frame (None), each node's joints in spec order:
+        (each node's tree children as (child, joint) in spec order, the closures in spec order)."""
+        rank = {id(j): i for i, j in enumerate(self.joints)}
+        children: dict[str | None, list[tuple[str, _JointB]]] = {}
+        reached: set[str | None] = {None}
+        done: set[int] = set()
+        closures = []
+        queue: deque[str | None] = deque([None])
+        while queue:
+            node = queue.popleft()
+            for other, j in sorted(adjacency[node], key=lambda t: rank[id(t[1])]):
+                if id(j) in done:
+                    continue
+                done.add(id(j))
+                if other in reached:
+                    closures.append(j)
+                    continue
+                reached.add(other)
+                children.setdefault(node, []).append((other, j))
+                queue.append(other)
+        children.setdefault(None, [])
+        return children, sorted(closures, key=lambda j: rank[id(j)])
+
+    def frozen_system(self, sb: _SystemB, order, closures: list[_JointB]) -> System:
+        """The checked system: bodies in preorder with their tree joints, then the closures
+        (parent: the first argument's body, child: the second's)."""
         bodies = []
         out_joints = []
+        frozen_bvecs: dict[str, dict[str, BoundVector]] = {}
         used: set[str] = set()
-        for name, j, parent in zip(order, tree_joints, parents):
+        for name, j, parent in order:
             b = sb.bodies[name]
-            bvecs = {n: self.freeze_bvec(v) for n, v in b.bvecs.items()}
+            bvecs = frozen_bvecs[name] = {n: self.freeze_bvec(v) for n, v in b.bvecs.items()}
             bodies.append(Body(name, b.inner, b.outer, bvecs, sb.name, b.loc))
             child_end = j.ends[0] if (j.ends[0].body and j.ends[0].body.name == name) else j.ends[1]
             parent_end = j.ends[1] if child_end is j.ends[0] else j.ends[0]
-            jname = f"{name}_{child_end.name}"
-            k = 2
-            # body 'a_b' + bvec 'c' and body 'a' + bvec 'b_c'; a spherical joint also takes the
-            # names of its three URDF joints and two links (kms2pin.urdf.spherical_parts)
-            while not self.names_free(jname, j.kind, used, sb.bodies):
-                jname, k = f"{name}_{child_end.name}_{k}", k + 1
-            used.add(jname)
-            if j.kind == "spherical":
-                used.update(f"{jname}_{a}" for a in "xyz")
+            jname = self.joint_name(name, child_end.name, j.kind, used, sb.bodies)
             out_joints.append(
-                Joint(
-                    jname,
-                    j.kind,
-                    parent,
-                    name,
-                    self.freeze_bvec(parent_end),
-                    bvecs[child_end.name],
-                    j.angle,
-                    j.loc,
-                    j.limits,
-                    j.rotation,
-                    j.offset,
-                )
+                Joint(jname, j.kind, parent, name, self.freeze_bvec(parent_end), bvecs[child_end.name], j.angle,
+                      j.loc, j.limits, j.rotation, j.offset)
             )
-        return System(sb.name, tuple(bodies), tuple(out_joints), sb.loc)
+
+        def end(e: _BvecB) -> BoundVector:
+            return frozen_bvecs[e.body.name][e.name] if e.body is not None else self.freeze_bvec(e)
+
+        out_closures = []
+        for j in closures:
+            parent, child = (e.body.name if e.body is not None else None for e in j.ends)
+            jname = self.joint_name(child or WORLD, j.ends[1].name, j.kind, used, sb.bodies)
+            out_closures.append(Joint(jname, j.kind, parent, child, end(j.ends[0]), end(j.ends[1]), loc=j.loc))
+        return System(sb.name, tuple(bodies), tuple(out_joints), sb.loc, tuple(out_closures))
+
+    def joint_name(self, body: str, bvec: str, kind: str, used: set[str], bodies: Mapping[str, object]) -> str:
+        """``<body>_<bvec>``, with a suffix ``_2``, ``_3``, ... if taken (body 'a_b' + bvec 'c' and
+        body 'a' + bvec 'b_c'; a spherical joint also takes the names of its three URDF joints
+        and two links, :func:`kms2pin.urdf.spherical_parts`); recorded in ``used``."""
+        jname, k = f"{body}_{bvec}", 2
+        while not self.names_free(jname, kind, used, bodies):
+            jname, k = f"{body}_{bvec}_{k}", k + 1
+        used.add(jname)
+        if kind == "spherical":
+            used.update(f"{jname}_{a}" for a in "xyz")
+        return jname
 
     @staticmethod
     def names_free(name: str, kind: str, used: set[str], bodies: Mapping[str, object]) -> bool:
@@ -1015,25 +1021,6 @@ class Analyzer:
         derived = [name, *(f"{name}_{a}" for a in "xyz")]
         links = [f"{name}_{a}_link" for a in "xy"]
         return not any(n in used for n in derived) and not any(n in bodies or n == WORLD for n in links)
-
-    @staticmethod
-    def tree_path(
-        adjacency: Mapping[str | None, Iterable[tuple[str | None, _JointB]]], a: str | None, b: str | None
-    ) -> list:
-        prev = {a: a}
-        queue = deque([a])
-        while queue:
-            n = queue.popleft()
-            if n == b:
-                break
-            for m, _ in adjacency[n]:
-                if m not in prev:
-                    prev[m] = n
-                    queue.append(m)
-        path = [b]
-        while path[-1] != a:
-            path.append(prev[path[-1]])
-        return path[::-1]
 
 
 def _norm(v) -> float:

@@ -20,6 +20,13 @@ Coordinates: q ∈ R^{7n}, body i's block q[7i:7i+7] = [mu_x, mu_y, mu_z, θ0, �
     the child's point mu_j + R_0j a_ji lies on the line through mu_i + R_0i a_ij along
     R_0i o_ij (with the orientation rows, R_0i^T R_0j = R_align).
 
+Then, for each loop closure (``System.closures``, kms2pin: thesis §4.2), the same rows
+of its joint between its parent and child bodies, which are not parent and child in the
+tree (labelled ``"<closure> ..."``; the inertial frame where one end is an inertial
+bvec).  Closures often add rows that depend on others (a planar loop's out-of-plane
+rows): the number of independent rows, so the degrees of freedom, is the numerical rank
+of C_q (the SVD/QR constraint selection of §2.3.2), not a count of joint rows.
+
 The inertial frame has mu = 0 and R = I.  Every row is a polynomial of degree <= 3 in
 q (2 without prismatic joints below a body), so C_q has degree <= 2.
 """
@@ -37,7 +44,7 @@ import sympy as sp
 from sympy.polys.rings import PolyElement
 
 from ..model import JOINT_DOF, System
-from .kinematics import check_root
+from .kinematics import check_root, forward_kinematics
 from .rotations import alignment_matrix, perpendicular_axis
 
 COORDINATE_NAMES = ("mu_x", "mu_y", "mu_z", "theta0", "theta1", "theta2", "theta3")
@@ -171,6 +178,11 @@ class SymbolicModel:
             new_rows = _joint_rows(joint, parent, frame(j_idx), zero)
             rows += [r for r, _ in new_rows]
             labels += [f"{joint.name} {lab}" for _, lab in new_rows]
+        for joint in system.closures:  # the same rows between two bodies that are not parent and child
+            ends = (frame(None if b is None else index[b]) for b in (joint.parent, joint.child))
+            new_rows = _joint_rows(joint, *ends, zero)
+            rows += [r for r, _ in new_rows]
+            labels += [f"{joint.name} {lab}" for _, lab in new_rows]
         self.polys = tuple(rows)
         self.labels = tuple(labels)
         self.nc = len(rows)
@@ -209,6 +221,9 @@ class SymbolicModel:
             if second
             else (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
         )
+        if system.closures:  # the rank of C_q at the tree's rest pose (closed there, or nearly)
+            self.n_dependent = self.rank(forward_kinematics(system, root=self.root))
+            self.dof = self.nq - self.n_dependent
         self.build_seconds = time.perf_counter() - start
 
     @cached_property
@@ -297,19 +312,30 @@ class SymbolicModel:
         np.add.at(out, (self._hi, self._hk), self._hc * x[self._ho] * lam[self._hr])
         return out
 
+    def rank(self, q: np.ndarray) -> int:
+        """The numerical rank of C_q at ``q`` (singular values above 1e-9 of the largest): how
+        many of the rows are independent there."""
+        sig = np.linalg.svd(self.C_q(q), compute_uv=False)
+        return int((sig > 1e-9 * sig[0]).sum()) if sig.size and sig[0] > 0 else 0
+
     def partition(self, q: np.ndarray, Cq: np.ndarray | None = None) -> Partition:
         """Numerical coordinate partitioning q = [q_I, q_D] (eq. 2.24) at ``q``.
 
         QR with column pivoting of C_q picks the ``nq - dof`` best-conditioned columns
         as the dependent coordinates q_D; the other ``dof`` are independent.  (The
         thesis fixes one inertial Euler parameter θ_{j,0} per revolute joint, which
-        fails where ∂θ0/∂θ = 0, fig. 2.2(c); a numerical choice never does.)
+        fails where ∂θ0/∂θ = 0, fig. 2.2(c); a numerical choice never does.)  With loop
+        closures ``nq - dof`` is the rank of C_q (:meth:`rank`) at ``q``.
         """
         if Cq is None:
             Cq = self.C_q(q)
         _, piv = scipy.linalg.qr(Cq, mode="r", pivoting=True)
-        dep = np.sort(piv[: self.n_dependent])
-        ind = np.sort(piv[self.n_dependent :])
+        n_dep = self.n_dependent
+        if self.system.closures:
+            sig = np.linalg.svd(Cq, compute_uv=False)
+            n_dep = int((sig > 1e-9 * sig[0]).sum()) if sig.size and sig[0] > 0 else 0
+        dep = np.sort(piv[:n_dep])
+        ind = np.sort(piv[n_dep:])
         return Partition(ind, dep)
 
     def B_di(self, q: np.ndarray, partition: Partition | None = None, rtol: float = 1e-10) -> np.ndarray:

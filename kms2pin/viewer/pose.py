@@ -15,8 +15,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
-from ..errors import did_you_mean
+from ..errors import RobotError, did_you_mean
 from ..robot import Robot
 from .errors import PoseError
 
@@ -160,6 +161,9 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q: np.ndarray | N
     the joint has limits in the spec; prismatic offsets in spec length units.  Unknown
     names (with a "did you mean"), fixed joints, a coordinate given twice, values that
     are not finite numbers and values outside a joint's limits raise :class:`PoseError`.
+    With loop closures the result is projected onto them with the named joints held (the
+    closing joints follow, :meth:`Robot.project`); a pose the loops cannot reach raises
+    :class:`PoseError`.
     """
     q = np.array(robot.q_rest if q is None else q, dtype=float)
     if q.shape != (robot.nq,):
@@ -178,4 +182,35 @@ def parse_pose(robot: Robot, pose: str | Iterable[str] | None, q: np.ndarray | N
         if name in values:
             raise PoseError(f"joint '{name}' is given twice")
         values[name] = _value(s, value, robot)
+    if robot.closures and values:
+        return _closed_pose(robot, q, values)
     return robot.with_coordinates(q, values)
+
+
+#: The largest step of a slider's joint between two projections onto the loops (degrees;
+#: a prismatic joint: this many hundredths of the model's height), so that the mechanism
+#: follows the joint continuously and stays in its assembly mode.
+LOOP_STEP_DEG = 10.0
+
+
+def _closed_pose(robot: Robot, q: np.ndarray, values: dict[str, float]) -> np.ndarray:
+    """``q`` with the named coordinates set, the loops closed after each of a few steps there
+    (:data:`LOOP_STEP_DEG`) with those joints held (:meth:`Robot.project`)."""
+    target = robot.with_coordinates(q, values)
+    joints = {robot._coordinate_slots[n][0] for n in values}
+    held = [v for j in joints for v in range(j.idx_v, j.idx_v + (3 if j.kind == "spherical" else 1))]
+    d = pin.difference(robot.model, q, target)
+    scale = np.full(len(d), math.radians(LOOP_STEP_DEG))
+    for j in joints:
+        if j.kind == "prismatic":
+            scale[j.idx_v] = 0.01 * LOOP_STEP_DEG * robot.height
+    steps = max(1, math.ceil(float(np.max(np.abs(d) / scale))))
+    try:
+        for k in range(1, steps + 1):
+            q = robot.with_coordinates(q, values) if k == steps else pin.integrate(robot.model, q, d / steps)
+            q = robot.project(q, hold=held)
+    except RobotError:
+        shown = " ".join(f"{n}={v:g}" for n, v in values.items())
+        raise PoseError(f"{shown}: the loops of '{robot.system.name}' cannot be closed with "
+                        f"{'this joint' if len(values) == 1 else 'these joints'} there; the pose is unchanged") from None
+    return q
