@@ -136,7 +136,10 @@ class Closures:
         self.rows = start
         self._starts = np.array([c.rows.start for c in items], dtype=int)
         ends = [e for c in items for e in c.ends]
-        self._end_joint = np.array([float(jid) for jid, _ in ends])
+        # the joints the ends hang on (only their placements are converted), and each end's
+        # index among them
+        self._end_joints = sorted({jid for jid, _ in ends})
+        self._end_joint = np.array([float(self._end_joints.index(jid)) for jid, _ in ends])
         self._end_offset = np.array([pin.SE3ToXYZQUAT(M) for _, M in ends]).reshape(-1, 7)
         self._moving = np.zeros((len(ends), model.nv))  # 1 where column a moves end e
         for e, (jid, _) in enumerate(ends):
@@ -155,6 +158,7 @@ class Closures:
             self._models.append(c.constraint)
         self._fixed = [(k, c) for k, c in enumerate(self._pinocchio) if c.joint.kind == "fixed"]
         self.has_fixed = bool(self._fixed)
+        self._last = None  # system_at's last (q, what, order, result)
 
     def __len__(self) -> int:
         return len(self._items)
@@ -167,8 +171,8 @@ class Closures:
         """(2 K, 7) world placements (XYZQUAT) of every closure's two ends (parent, child, ...)
         after a forward pass into ``data``."""
         X = np.empty((len(self._end_joint), 7))
-        xyzquat = pin.SE3ToXYZQUAT
-        kernels.frame_coordinates([xyzquat(M) for M in data.oMi.tolist()], self._end_joint, self._end_offset, X)
+        xyzquat, oMi = pin.SE3ToXYZQUAT, data.oMi.tolist()
+        kernels.frame_coordinates([xyzquat(oMi[j]) for j in self._end_joints], self._end_joint, self._end_offset, X)
         return X
 
     def _datas(self, data: pin.Data) -> pin.StdVec_RigidConstraintData:
@@ -199,6 +203,21 @@ class Closures:
         if self._fixed:
             self._pinocchio_rows(model, data, r, Jc if what >= 1 else None, [c for _, c in self._fixed])
         return r, (Jc if what >= 1 else None), (H if what >= 2 else None)
+
+    def system_at(self, model: pin.Model, data: pin.Data, q: np.ndarray, what: int = 1,
+                  order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """:meth:`system` at ``q`` after ``pin.computeJointJacobians`` into ``data`` there, the
+        last result kept: asked again at the same ``q`` for no more than it holds, it is
+        returned without a new evaluation.  The arrays are shared with that cache: do not
+        change them."""
+        key = q.tobytes()
+        last = self._last
+        pin.computeJointJacobians(model, data, q)
+        if last is not None and last[0] == key and last[1] >= what and (what < 2 or last[2] is order):
+            return last[3]
+        out = self.system(model, data, what, order)
+        self._last = (key, what, order, out)
+        return out
 
     def _pinocchio_rows(self, model: pin.Model, data: pin.Data, r: np.ndarray, Jc: np.ndarray | None,
                         closures: list[_Closure]) -> None:
@@ -294,25 +313,28 @@ def least_norm(J: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray, lower: np.ndarray,
-            upper: np.ndarray, held: np.ndarray, tol: float = 1e-12, max_iter: int = 50) -> tuple[np.ndarray, np.ndarray]:
+            upper: np.ndarray, held: np.ndarray, tol: float = 1e-12, max_iter: int = 50, what: int = 1,
+            order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton on the residual from ``q``: q <- pin.integrate(q, -J⁺ r), J⁺ the
     least-norm pseudo-inverse (so the correction is the least in the tangent-space
     metric, to first order), until max |r| <= ``tol``; a step that does not lower |r| is
     halved (8 times at most, then the projection stops where it is).  Columns where
     ``held`` (nv,) is True do not move; a coordinate clipped into [``lower``, ``upper``]
     is held from then on.  Returns the configuration and its residual rows, with ``data``
-    after ``pin.computeJointJacobians`` there."""
+    after ``pin.computeJointJacobians`` there.  Every evaluation is :meth:`Closures.system_at` with
+    ``what`` and ``order`` (2: the curvature too, so that the caller's next
+    ``system_at(q, 2, order)`` at the result costs nothing)."""
     held = held.copy()
     limited = np.isfinite(lower)
     limits = bool(limited.any())
     clipped = limited
-    pin.computeJointJacobians(model, data, q)
-    r, J, _ = closures.system(model, data, 1)
+    r, J, _ = closures.system_at(model, data, q, what, order)
     err = float(np.abs(r).max(initial=0.0))
     for _ in range(max_iter):
         if err <= tol:
             break
         if held.any():
+            J = J.copy()
             J[:, held] = 0.0
         dq = least_norm(J, r)
         for _ in range(9):
@@ -321,8 +343,7 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
                 clipped = limited & ((q_new < lower) | (q_new > upper))
                 if clipped.any():
                     q_new = np.clip(q_new, lower, upper)
-            pin.computeJointJacobians(model, data, q_new)
-            r_new, J_new, _ = closures.system(model, data, 1)
+            r_new, J_new, _ = closures.system_at(model, data, q_new, what, order)
             err_new = float(np.abs(r_new).max())
             if err_new < err:
                 break

@@ -387,7 +387,7 @@ def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, 
     if limited:
         q_new = robot.clamp(q_new)
     q_new, r = project(robot._closures, model, data, q_new, robot.lower_limits, robot.upper_limits, held,
-                       0.1 * robot._closure_tol)
+                       0.1 * robot._closure_tol, what=2, order=_structure(robot).order)
     return q_new if np.abs(r).max(initial=0.0) <= 0.1 * robot._closure_tol else None
 
 
@@ -402,7 +402,7 @@ def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray,
     limits come from the least-squares multipliers of g + Aᵀ μ = 0 over the closures' rows
     and the joints at a limit (held where μ pushes outwards)."""
     model, data, C = robot.model, robot.data, robot._closures
-    _, Jc, curvature = C.system(model, data, 2, s.order)
+    _, Jc, curvature = C.system_at(model, data, q, 2, s.order)  # after project: no new evaluation
     nv = model.nv
     held = np.zeros(nv, dtype=bool)
     bounds = s.limits
@@ -416,12 +416,13 @@ def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray,
     k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H,
                               curvature if newton else curvature[:0])
     if held.any():
+        Jc = Jc.copy()  # system_at's cache is not to be changed
         Jc[:, held] = 0.0
 
     def second(dq: np.ndarray) -> np.ndarray:
         """``dq`` (along the closures) plus its second-order correction: the least-norm δ with
         Jc δ = -½ dqᵀ ∇²c dq, so that the closures hold to third order at q ⊕ (dq + δ)."""
-        v = 0.5 * (curvature.reshape(len(Jc), -1) @ np.outer(dq, dq).ravel())
+        v = 0.5 * ((curvature @ dq) @ dq)
         return dq + least_norm(Jc, v)
 
     return Hr[:k, :k], gr[:k], N[:, :k], held, float(gr @ gr), second

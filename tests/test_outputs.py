@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -146,12 +147,28 @@ def test_two_tracks_into_one_folder_do_not_mix(masks, tmp_path):
     assert main(["evaluate", str(out), str(masks / "truth.csv")]) == 0
 
 
+LONG = 400
+
+
+@pytest.fixture(scope="module")
+def long_masks(masks, tmp_path_factory) -> Path:
+    """The 40 frames played forward and back to 400 (hard links): a run long enough that
+    the signal always lands mid-run, however busy the machine is."""
+    d = tmp_path_factory.mktemp("long_masks")
+    shutil.copy(masks / "cameras.json", d)
+    (d / "cam0").mkdir()
+    cycle = list(range(40)) + list(range(38, 0, -1))
+    for k in range(LONG):
+        os.link(masks / "cam0" / f"frame_{cycle[k % len(cycle)]:05d}.png", d / "cam0" / f"frame_{k:05d}.png")
+    return d
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("signum, status, said", [(signal.SIGTERM, 143, "terminated (SIGTERM)"),
                                                   (signal.SIGINT, 130, "interrupted")])
-def test_sigterm_or_ctrl_c_during_track_leave_complete_outputs(masks, tmp_path, signum, status, said):
+def test_sigterm_or_ctrl_c_during_track_leave_complete_outputs(long_masks, tmp_path, signum, status, said):
     out = tmp_path / "out"
-    proc = kms2pin(*commands(masks, out)["track"])
+    proc = kms2pin(*commands(long_masks, out)["track"])
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:  # wait for a few finished frames
         if (out / "trajectory.csv").exists() and len((out / "trajectory.csv").read_text().splitlines()) > 4:
@@ -166,10 +183,10 @@ def test_sigterm_or_ctrl_c_during_track_leave_complete_outputs(masks, tmp_path, 
     with open(out / "trajectory.csv") as f:
         rows = list(csv.DictReader(f))
     n = len(rows)
-    assert 4 <= n < 40
+    assert 4 <= n < LONG
     assert f"interrupted after {n} frame(s)" in err
     meta = json.loads((out / "meta.json").read_text())
-    assert meta["complete"] is False and meta["frames"] == 40
+    assert meta["complete"] is False and meta["frames"] == LONG
     poses = np.load(out / "poses.npz")
     assert poses["q"].shape[0] == n
     np.testing.assert_allclose(np.degrees(poses["q"][:, 7]), [float(r["leftThigh_hip"]) for r in rows], atol=1e-6)
