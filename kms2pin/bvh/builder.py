@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import BvhError, Diagnostic, UsageError, did_you_mean
 from ..lang import parse_text
-from ..lang.semantics import MAX_LENGTH, MIN_LENGTH
+from ..lang.symbols import MAX_LENGTH, MIN_LENGTH
 from ..model import alignment_matrix, axis_angle_matrix, perpendicular_axis
 from ..robot import Robot
 from .anthropometry import ALONG, OTHER_RATIO, OUTER, segment_of

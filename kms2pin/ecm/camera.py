@@ -37,7 +37,7 @@ import pinocchio as pin
 
 from kms2pin.errors import CameraError, did_you_mean
 from kms2pin.jsonfile import read_json
-from kms2pin.lang.semantics import MAX_LENGTH
+from kms2pin.lang.symbols import MAX_LENGTH
 from kms2pin.robot import rotation_error
 from kms2pin.userfile import MAX_IMAGE_SIDE
 

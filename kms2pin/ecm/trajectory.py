@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputDataError
-from ..lang.semantics import MAX_LENGTH
+from ..lang.symbols import MAX_LENGTH
 from ..robot import Robot
 from ..userfile import MAX_DATA_BYTES, read_user_file
 

@@ -18,7 +18,7 @@ import pinocchio as pin
 
 from ..errors import InputDataError, did_you_mean
 from ..jsonfile import read_json
-from ..lang.semantics import MAX_LENGTH
+from ..lang.symbols import MAX_LENGTH
 from ..robot import Robot, rotation_error
 
 __all__ = ["read_pose_json"]
