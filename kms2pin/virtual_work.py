@@ -239,8 +239,8 @@ class _Evaluator:
         with the Euler parameters in the theta0 >= 0 convention of Robot.maximal_coordinates,
         from the body coordinates X and their aligned residual ``diff`` (:meth:`linearize_full`)."""
         F = (self.k * diff)[:, _TO_THESIS]
-        F[X[:, 6] >= 0] *= -1.0  # -k diff, Euler parameters' sign flipped with theta0 < 0
-        F[X[:, 6] < 0, :3] *= -1.0
+        F[:, :3] *= -1.0  # -k diff; the Euler parameters' sign flipped with theta0 < 0
+        F[:, 3:] *= np.where(X[:, 6] >= 0, -1.0, 1.0)[:, None]
         return F
 
 
@@ -460,8 +460,12 @@ def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
     outwards (descent -grad leaves the range) taken out: zero gradient, unit row and
     column, in place.  Returns them and the squared norm of the projected gradient."""
     iq, iv, _, _, lo_at, hi_at = bounds
-    x, g = q[iq], grad[iv]
-    active = ((x <= lo_at) & (g > 0)) | ((x >= hi_at) & (g < 0))
+    x = q[iq]
+    low, high = x <= lo_at, x >= hi_at
+    if not (low.any() or high.any()):  # the usual case: no joint at a limit
+        return grad, H, float(grad @ grad)
+    g = grad[iv]
+    active = (low & (g > 0)) | (high & (g < 0))
     if active.any():
         a = iv[active]
         grad[a] = 0.0
