@@ -40,7 +40,7 @@ def excerpt(line: str, column: int) -> tuple[str, int]:
 def shorten_quoted(message: str) -> str:
     """``message`` with every quoted name longer than :data:`SHOWN_NAME` characters cut in its middle."""
     half = SHOWN_NAME // 2
-    return _QUOTED.sub(lambda m: f"'{m[1][:half]}...{m[1][-half // 2:]}'", message)
+    return _QUOTED.sub(lambda m: f"'{m[1][:half]}...{m[1][-half:]}'", message)
 
 
 class Kms2pinError(Exception):
