@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 SHOWN_LINE = 100  # characters of a source line shown around the caret
 SHOWN_NAME = 60  # characters of a quoted name shown in a message
-_QUOTED = re.compile(r"'([^'\n]{" + str(SHOWN_NAME + 1) + r",})'")
+# a quoted name has no white space: two apostrophes of possessives ("the root's ... the
+# spec's") do not quote one
+_QUOTED = re.compile(r"'([^'\s]{" + str(SHOWN_NAME + 1) + r",})'")
 
 
 def excerpt(line: str, column: int) -> tuple[str, int]:

@@ -26,7 +26,17 @@ from .errors import RobotError, SpecError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
 from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_angles, xyz_rotation
 from .pinmodel import build_model
-from .urdf import ROOT_JOINT, centre_offset, rest_values, spherical_parts, to_srdf, to_urdf, urdf_number, wrap_angle
+from .urdf import (
+    ROOT_JOINT,
+    centre_offset,
+    check_root_joint_name,
+    rest_values,
+    spherical_parts,
+    to_srdf,
+    to_urdf,
+    urdf_number,
+    wrap_angle,
+)
 
 ROOTS = ("spec", "free")
 
@@ -67,9 +77,11 @@ def _quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
     return pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
 
 
-def check_free_root(system: System) -> None:
-    """Raise RobotError unless ``system`` has exactly one joint to the inertial frame (the
-    one ``root="free"`` replaces by a free flyer)."""
+def check_free_root(system: System, spec: ModelSpec | None = None) -> None:
+    """Raise unless ``system`` can take ``root="free"``: exactly one joint to the inertial
+    frame (the one the free flyer replaces; RobotError) and no other joint already called
+    :data:`~kms2pin.urdf.ROOT_JOINT`, the free flyer's name (SpecError at that joint's
+    ``constraint`` in ``spec``; without ``spec``, ExportError)."""
     anchored = [j.child for j in system.children(None)]
     if len(anchored) != 1:
         raise RobotError(
@@ -77,6 +89,13 @@ def check_free_root(system: System) -> None:
             f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
             "use root='spec' or keep one"
         )
+    if spec is not None:
+        for j in system.joints:
+            if j.name == ROOT_JOINT and j.parent is not None:
+                raise SpecError([spec.diagnostic(j.loc, (
+                    f"this joint of '{system.name}' is called '{ROOT_JOINT}' (body '{j.child}'), the name a free "
+                    "root's joint takes; rename the body or its bound vector, or keep the spec's root"))])
+    check_root_joint_name(system)
 
 
 def mesh_package_dir() -> str:
@@ -128,7 +147,7 @@ class Robot:
         self.root = root
         free = root == "free"
         if free:
-            check_free_root(system)
+            check_free_root(system, spec)
         source = os.path.basename(spec.path)
         self.urdf = to_urdf(system, source, free_root=free)
         self.model, links = build_model(system, free)

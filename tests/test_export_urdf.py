@@ -222,7 +222,10 @@ def test_a_joint_already_called_root_joint_is_refused_with_a_free_root(tmp_path,
     """)
     for fmt in ("urdf", "mjcf"):
         assert main(["export", str(spec), "-o", str(tmp_path / fmt), "--root", "free", "--format", fmt]) == 1
-        assert "'s' has a joint called 'root_joint' (body 'root')" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        line = 1 + spec.read_text().splitlines().index("            constraint revolute(a.tip, root.joint, 10);")
+        assert f"{spec}:{line}:13: error: this joint of 's' is called 'root_joint' (body 'root'), the name a " \
+               "free root's joint takes; rename the body or its bound vector, or keep the spec's root" in err
         assert not (tmp_path / fmt).exists()
     assert main(["export", str(spec), "-o", str(tmp_path / "spec")]) == 0
 

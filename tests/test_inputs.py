@@ -22,6 +22,7 @@ import pytest
 from conftest import SPECS
 
 from kms2pin.cli import main
+from kms2pin.errors import shorten_quoted
 from kms2pin.userfile import MAX_SPEC_BYTES
 
 CAMERA = {"width": 64, "height": 48, "K": [[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]],
@@ -118,6 +119,13 @@ def test_a_ten_megabyte_one_line_spec_gives_a_short_message_with_the_caret_in_pl
     assert shown.startswith("    ...") and shown.endswith("...")
     assert shown[caret.index("^")] == "@"  # the caret under the culprit
     assert shown[7:-3] in text
+
+
+def test_possessives_far_apart_are_no_quoted_name_to_cut():
+    message = "the root's joint takes the name; " + "x " * 40 + "or keep the spec's root"
+    assert shorten_quoted(message) == message
+    name = "n" * 30 + "m" * 40 + "o" * 30
+    assert shorten_quoted(f"body '{name}' of the root's") == f"body '{'n' * 30}...{'o' * 30}' of the root's"
 
 
 def test_a_huge_name_is_cut_in_the_message(tmp_path, capsys):

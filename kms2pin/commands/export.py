@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     free = args.root == "free"
     for system in systems:  # text only: no Pinocchio model (its construction grows as n^2), but for loops
         if free:
-            check_free_root(system)
+            check_free_root(system, spec)
         robot = Robot(spec, system, args.root) if system.closures else None
         if args.format == "mjcf":
             rest = robot.joint_blocks(robot.q_rest) if robot is not None else None
