@@ -117,8 +117,10 @@ def test_the_track_command_has_a_flag_for_each_option_that_declares_one(capsys):
     for f in cli_fields():
         assert f.metadata["cli"].flag in shown and " ".join(f.metadata["help"].split()) in shown
     args = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--tol-px", "0", "--upright", "0.1",
-                              "--no-mirror-hypothesis", "--up", "0", "0", "1", "--size-every", "3"])
+                              "--no-mirror-hypothesis", "--up", "0", "0", "1", "--size-every", "3",
+                              "--prediction", "learnt", "--reach-search"])
     opts = tracker_options(args)
+    assert opts.iteration.prediction == "learnt" and opts.limbs.reach_search is True
     assert opts.iteration.tol_px is None and opts.priors.upright == 0.1 and opts.sizes.size_every == 3
     assert opts.hypotheses.mirror_hypothesis is False and opts.priors.up == (0.0, 0.0, 1.0)
     assert opts.limbs.limb_search is None and opts.hypotheses.swap_hypothesis is None  # not given: automatic
