@@ -12,9 +12,10 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   is the same trial at twice the speed (imported at 15 frames/s and played at 30): every
   frame's motion doubled.
 - **The model**: ``kms2pin import --hinge LeftKnee,RightKnee,LeftElbow,RightElbow`` (knees and
-  elbows hinged, as a careful user would), edited as a careful user would
-  (:data:`FIXED`): the pelvis sides and the fingers, which the file never moves, and the
-  thumbs, 1-2 pixels wide, made fixed joints.  It differs from the subject in its
+  elbows hinged, as a careful user would), edited as a careful user would: the hinges
+  given anatomical limits (:data:`HINGE_LIMITS`), and (:data:`FIXED`) the pelvis sides
+  and the fingers, which the file never moves, and the thumbs, 1-2 pixels wide, made
+  fixed joints.  It differs from the subject in its
   shape (ellipsoids, sized by the anthropometric table, against the capsules), in those
   fixed joints, and in its hinges (CMU's knees and elbows turn about one axis: exact).
 - **The rig**: cameras around the walking path as a lab places them (:func:`rig`), 5.5-7 m
@@ -73,6 +74,8 @@ JOINTS = ("LeftHip", "LeftKnee", "LeftAnkle", "RightHip", "RightKnee", "RightAnk
 #: flexion angles: (the joint, the one above it, the one below), by their places in JOINTS
 FLEXION = {"left knee": (1, 0, 2), "right knee": (4, 3, 5), "left elbow": (7, 6, 8), "right elbow": (10, 9, 11)}
 HINGES = ("LeftKnee", "RightKnee", "LeftElbow", "RightElbow")
+#: the hinges' limits a careful user adds (degrees; the import makes flexion positive)
+HINGE_LIMITS = (-5.0, 160.0)
 #: joints a careful user makes fixed: the pelvis sides and the fingers never move in CMU's
 #: files, and the thumbs are 1-2 pixels wide at these resolutions
 FIXED = ("LHipJoint", "RHipJoint", "LFingers", "RFingers", "LThumb", "RThumb")
@@ -106,9 +109,12 @@ def tracking_model(bvh, speed: float) -> tuple[Robot, np.ndarray]:
     configurations with :data:`FIXED` left out (a start for the floor fit)."""
     imp = import_bvh(bvh, ImportOptions(scale=SCALE, fps=FPS / speed, hinges=HINGES, name="model"))
     text = imp.text
+    lines = {name: next(x for x in text.splitlines() if x.strip().startswith("constraint") and f", {name}.joint" in x)
+             for name in FIXED + HINGES}
     for name in FIXED:
-        line = next(x for x in text.splitlines() if x.strip().startswith("constraint") and f", {name}.joint" in x)
-        text = text.replace(line, line.replace("spherical(", "fixed("))
+        text = text.replace(lines[name], lines[name].replace("spherical(", "fixed("))
+    for name in HINGES:
+        text = text.replace(lines[name], lines[name].replace(", 0);", f", 0, {HINGE_LIMITS[0]:g}, {HINGE_LIMITS[1]:g});"))
     spec = parse_text(text, "model.kms")
     robot = Robot(spec, spec.system(), "free")
     kept = [imp.robot.model.getJointId(robot.model.names[j]) for j in range(1, robot.model.njoints)]
