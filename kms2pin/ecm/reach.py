@@ -16,9 +16,10 @@ of :data:`DIRECTIONS` directions spread over the sphere, the rest of its rotatio
 a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  Each choice is
 scored by the silhouette fit (IoU) with the rest of the body held, rendering only the
 moved bodies anew (a coarse score: a trial 20 degrees off a thin limb scores as one far
-off); the :data:`REFINED` best are refined by the frame's ECM, and the
-best of those is kept if its fit beats by :data:`GAIN` both the frame's and that of the
-frame's pose run on by the same ECM (more iterations gain a little by themselves).
+off); the :data:`REFINED` best are screened by a few ECM iterations on the masks
+binned 2x2 (as the limb search's), the :data:`FINAL` best of those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN` both the frame's and that of the
+frame's pose run on by the same ECM (more iterations gain a little by themselves).  A body
+whose search found nothing rests for :data:`REST_FRAMES` frames.
 """
 
 from __future__ import annotations
@@ -30,10 +31,10 @@ import numpy as np
 import pinocchio as pin
 
 from ..robot import JointCoordinates, Robot
-from .limbsearch import LimbMove
+from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM
 from .masks import Views
-from .silhouette import model_silhouette
+from .silhouette import body_coverage, model_silhouette
 
 __all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
 
@@ -50,8 +51,12 @@ STEP_DEG = 20.0
 #: the IoU a re-aimed limb must gain to be kept: more than the limb search's, since a
 #: frame's ECM run again from anywhere near gains a little by itself
 GAIN = 0.01
-#: how many of the best-scoring trials are refined by ECM
+#: a body whose search found nothing is not searched again for this many frames
+REST_FRAMES = 2
+#: how many of the best-scoring trials are screened by ECM on binned masks, and how many
+#: of those refined at full resolution
 REFINED = 6
+FINAL = 2
 
 
 def sphere_directions(n: int) -> np.ndarray:
@@ -99,6 +104,8 @@ class ReachSearch:
             child, child_body = kids[0] if len(kids) == 1 else (None, None)
             self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
         self.directions = sphere_directions(DIRECTIONS)
+        self._searches = 0  # calls of search(): the frames
+        self._failed: dict[int, int] = {}  # body -> the search that last found nothing for it
 
     def _span(self, jid: int, moved: tuple[int, ...]) -> float:
         """How far the ``moved`` bodies reach from joint ``jid``'s point at rest (m)."""
@@ -143,14 +150,10 @@ class ReachSearch:
     def lost(self, q: np.ndarray, views: Views) -> list[int]:
         """The topmost lost bodies at ``q`` (module docstring): none of their ancestors lost."""
         poses, Rs, ts = self.ecm.poses(q)
-        inner = self.ecm.sizes.inner
         lost = set()
         for cam, mask in zip(views.cameras, views.masks):
-            for i in self.reaches:
-                sil = model_silhouette(cam, [poses[i]], inner[i : i + 1], (Rs[i : i + 1], ts[i : i + 1]))
-                n = int(np.count_nonzero(sil))
-                if n >= MIN_PIXELS and np.count_nonzero(sil & mask) < COVERED * n:
-                    lost.add(i)
+            counts = body_coverage(cam, poses, self.ecm.sizes.inner, mask, (Rs, ts))
+            lost.update(i for i in self.reaches if counts[i, 0] >= MIN_PIXELS and counts[i, 1] < COVERED * counts[i, 0])
         return [i for i in sorted(lost) if not any(i in self.reaches[k].moved and k != i for k in lost)]
 
     def _aimed(self, q: np.ndarray, j: JointCoordinates, body: int) -> list[np.ndarray]:
@@ -183,29 +186,76 @@ class ReachSearch:
             out.append(c)
         return out
 
-    def _ranked(self, q: np.ndarray, trials: list[np.ndarray], moved: tuple[int, ...], views: Views,
-                keep: int) -> list[np.ndarray]:
-        """The ``keep`` configurations of ``q`` and ``trials`` that fit best, best first, the
-        bodies but ``moved`` held (their silhouette rendered once)."""
+    def _held(self, q: np.ndarray, moved: tuple[int, ...], views: Views) -> list[tuple]:
+        """Per camera, the silhouette of the bodies but ``moved`` at ``q`` against the mask:
+        its intersection and union counts, and the mask pixels it leaves (foreground and
+        background) that the moved bodies may add."""
         inner = self.ecm.sizes.inner
         poses, Rs, ts = self.ecm.poses(q)
         held = [i for i in range(len(poses)) if i not in moved]
-        base = []
+        out = []
         for cam, mask in zip(views.cameras, views.masks):
             s = model_silhouette(cam, [poses[i] for i in held], inner[held], (Rs[held], ts[held]))
-            base.append((np.count_nonzero(s & mask), np.count_nonzero(s | mask), mask & ~s, ~mask & ~s))
+            out.append((np.count_nonzero(s & mask), np.count_nonzero(s | mask), mask & ~s, ~mask & ~s))
+        return out
+
+    def _ranked(self, trials: list[np.ndarray], moved: tuple[int, ...], views: Views, held: list[tuple],
+                keep: int) -> list[np.ndarray]:
+        """The ``keep`` configurations of ``trials`` that fit best (IoU), best first (ties:
+        the earlier), the bodies but ``moved`` as in ``held`` (:meth:`_held`)."""
+        inner = self.ecm.sizes.inner
         idx = list(moved)
         scored = []
-        for k, c in enumerate([q, *trials]):
+        for k, c in enumerate(trials):
             P = self.robot.body_poses(c)
             arrays = (np.array([P[i].rotation for i in idx]), np.array([P[i].translation for i in idx]))
             inter = union = 0
-            for cam, (i0, u0, fg, bg) in zip(views.cameras, base):
+            for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
                 sil = model_silhouette(cam, [P[i] for i in idx], inner[idx], arrays)
                 inter += i0 + np.count_nonzero(sil & fg)
                 union += u0 + np.count_nonzero(sil & bg)
             scored.append((-(inter / union if union else 1.0), k, c))
         return [c for *_, c in sorted(scored, key=lambda x: x[:2])[:keep]]
+
+    def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
+        """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (module docstring;
+        ``q`` itself among them if it scores so)."""
+        trials = self._aimed(q, r.joint, r.body)
+        if r.child is not None:  # each direction also with the joint below at rest (a limb unbent)
+            sl = slice(r.child.idx_q, r.child.idx_q + r.child.nq)
+            for c in list(trials):
+                c = c.copy()
+                c[sl] = self.robot.q_rest[sl]
+                trials.append(c)
+        held = self._held(q, r.moved, views)
+        starts = self._ranked([q, *trials], r.moved, views, held, REFINED)
+        if r.child is None:
+            return starts
+        return [self._ranked([c, *self._aimed(c, r.child, r.child_body)], r.moved, views, held, 1)[0] for c in starts]
+
+    def _refined(self, q: np.ndarray, fit: float, starts: list[np.ndarray], views: Views, binned: Views | None,
+                 coarse: Views | None, timings: dict, base: tuple | None) -> tuple[tuple, tuple | None]:
+        """The best of ``starts`` after screening and refinement (module docstring) as
+        (configuration, fit) if it gains :data:`GAIN`, else (``q``, ``fit``); and ``base``,
+        ``q`` run on by the frame's ECM (made when first needed)."""
+        best = (q, fit)
+        screened = []
+        for k, c in enumerate(starts):
+            if c is q:
+                continue
+            c = self.robot.clamp(c)
+            if binned is not None:
+                c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
+            screened.append((-self.ecm.fit(c, views), k, c))
+        for *_, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
+            qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
+            fc = self.ecm.fit(qc, views)
+            if fc > fit + GAIN and base is None:  # the fair comparison: q run on as long
+                qb, _, _ = self.ecm.run(q, views, timings, coarse=coarse)
+                base = (qb, self.ecm.fit(qb, views))
+            if fc > max(best[1], base[1] if base is not None else -1.0) + GAIN:
+                best = (qc, fc)
+        return best, base
 
     def _todo(self, q: np.ndarray, views: Views, tried: set[int]) -> list[int]:
         """The bodies to re-aim at ``q``: the topmost lost ones, then the missed limbs, none
@@ -213,48 +263,29 @@ class ReachSearch:
         lost = self.lost(q, views)
         return [i for i in lost + [k for k in self.missed(q, views) if k not in lost] if i not in tried]
 
-    def search(self, q: np.ndarray, fit: float, views: Views, coarse: Views | None,
+    def search(self, q: np.ndarray, fit: float, views: Views, binned: Views | None, coarse: Views | None,
                timings: dict) -> tuple[np.ndarray, float, list[LimbMove]]:
         """Re-aim every topmost lost body and missed limb of ``q`` (its ``fit``), each once,
-        looking again after each move kept; returns the configuration, its fit and the
-        moves kept."""
+        looking again after each move kept (``binned``: the views binned 2x2 the trials are
+        screened on; ``coarse``: the frame's coarse views); returns the configuration, its
+        fit and the moves kept."""
+        self._searches += 1
         moves: list[LimbMove] = []
-        tried: set[int] = set()
+        tried = {i for i, k in self._failed.items() if self._searches - k <= REST_FRAMES}
         base = None  # (q run on by ECM, its fit), once a trial looks like a gain
         todo = self._todo(q, views, tried)
         while todo:
             i = todo.pop(0)
             tried.add(i)
             r = self.reaches[i]
-            trials = self._aimed(q, r.joint, i)
-            if r.child is not None:  # each direction also with the joint below at rest (a limb unbent)
-                rest = self.robot.q_rest[r.child.idx_q : r.child.idx_q + r.child.nq]
-                for c in list(trials):
-                    c = c.copy()
-                    c[r.child.idx_q : r.child.idx_q + r.child.nq] = rest
-                    trials.append(c)
-            starts = self._ranked(q, trials, r.moved, views, REFINED)
-            if r.child is not None:
-                moved = self.reaches[r.child_body].moved
-                starts = [self._ranked(c, self._aimed(c, r.child, r.child_body), moved, views, 1)[0] for c in starts]
-            best = (q, fit)
-            for c in starts:
-                if c is q:
-                    continue
-                qc, _, _ = self.ecm.run(self.robot.clamp(c), views, timings, coarse=coarse)
-                fc = self.ecm.fit(qc, views)
-                if fc > best[1] + GAIN and base is None:  # the fair comparison: q run on as long
-                    qb, _, _ = self.ecm.run(q, views, timings, coarse=coarse)
-                    base = (qb, self.ecm.fit(qb, views))
-                    best = max(best, base, key=lambda x: x[1])
-                if fc > best[1] + GAIN:
-                    best = (qc, fc)
-            if best[0] is not q and (base is None or best[0] is not base[0]):
-                joints = (r.joint,) if r.child is None else (r.joint, r.child)
-                iq = np.array([k for j in joints for k in range(j.idx_q, j.idx_q + j.nq)], dtype=int)
-                q, fit = best
-                base = None
-                moves.append(LimbMove("reach", (r.joint.name,), iq))
-                tried.update(k for k in self.reaches if i in self.reaches[k].moved)  # its chain's joints above
-                todo = self._todo(q, views, tried)
+            (qc, fc), base = self._refined(q, fit, self._starts(q, r, views), views, binned, coarse, timings, base)
+            if qc is q:
+                self._failed[i] = self._searches
+                continue
+            joints = (r.joint,) if r.child is None else (r.joint, r.child)
+            iq = np.array([k for j in joints for k in range(j.idx_q, j.idx_q + j.nq)], dtype=int)
+            q, fit, base = qc, fc, None
+            moves.append(LimbMove("reach", (r.joint.name,), iq))
+            tried.update(k for k in self.reaches if i in self.reaches[k].moved)  # its chain's joints above
+            todo = self._todo(q, views, tried)
         return q, fit, moves

@@ -195,7 +195,7 @@ class Tracker:
         q, fit, moved, spawn = self._limb_search(q, fit, views, coarse, timings)
         flags += moved
         if self.reach is not None:
-            q, fit, reached = self.reach.search(q, fit, views, coarse, timings)
+            q, fit, reached = self.reach.search(q, fit, views, views.binned(self._binned), coarse, timings)
             flags += tuple(f for move in reached for f in self._moved(q, move))
         if self.hypotheses.margins:
             q, fit, switched = self.hypotheses.step(q, fit, state, views, timings, coarse,
