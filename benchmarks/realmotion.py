@@ -26,7 +26,8 @@ What is measured (docs/benchmarks.md, "Real human motion"):
 - **Errors** at the 13 joints (hips, knees, ankles, shoulders, elbows, wrists, the neck),
   the mean distance per frame in mm, no alignment: the mean over the frames, the median,
   the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee
-  and elbow flexion (the angle between the bones, from the joint positions) RMSE; frames/s.
+  and elbow flexion (the angle between the bones, from the joint positions) RMSE, the
+  knees' and the elbows' apart; frames/s.
 - **References**: the *floor*, the model fitted to the subject's true joint points on each
   frame (:func:`floor_poses`: what the model can express at best); *ECM from the floor*,
   one frame's ECM started at the floor pose on each frame (what the silhouettes pull the
@@ -236,12 +237,12 @@ def flexion(p: np.ndarray) -> np.ndarray:
     return np.array(out).T
 
 
-def summary(err: np.ndarray, flex_rmse: float) -> str:
-    """One row's figures from the per-frame errors (mm)."""
+def summary(err: np.ndarray, flex_rmse: tuple[float, float]) -> str:
+    """One row's figures from the per-frame errors (mm) and the knees' and elbows' flexion RMSE (deg)."""
     m = min(30, len(err))
     return (f"mean {err.mean():6.1f} mm | median {np.median(err):6.1f} | p90 {np.percentile(err, 90):6.1f} | worst "
             f"{err.max():6.1f} (frame {int(err.argmax()):3d}) | last/first 30 {err[-m:].mean() / err[:m].mean():5.2f} | "
-            f"flexion RMSE {flex_rmse:5.1f} deg")
+            f"flexion RMSE knees {flex_rmse[0]:5.1f} elbows {flex_rmse[1]:5.1f} deg")
 
 
 def track(seq: Sequence, cameras, masks, options: dict):
@@ -272,8 +273,9 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     err = joint_errors(seq.model, q, truth)
     flex_true = flexion(truth)
 
-    def flex_rmse(qs):
-        return float(np.sqrt(np.mean((flexion(np.array([points(seq.model, x, JOINTS) for x in qs])) - flex_true) ** 2)))
+    def flex_rmse(qs) -> tuple[float, float]:  # the knees', the elbows' (FLEXION's order)
+        sq = (flexion(np.array([points(seq.model, x, JOINTS) for x in qs])) - flex_true) ** 2
+        return float(np.sqrt(sq[:, :2].mean())), float(np.sqrt(sq[:, 2:].mean()))
 
     flagged = sum(1 for f in flags if f)
     print(f"{name:16s} tracked        | {summary(err, flex_rmse(q))} | {fps:5.1f} fr/s | {flagged} frames flagged",
@@ -328,10 +330,10 @@ def main() -> None:
         if motion not in sequences:
             sequences[motion] = load_sequence(a.bvh, motion, a.frames)
         rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options)
-    print("\ncase             |  mean |  worst | flexion | frames/s" + (" | floor | ECM from floor | own renders | "
+    print("\ncase             |  mean |  worst | knees, elbows | frames/s" + (" | floor | ECM from floor | own renders | "
                                                                       "fr/s real / own" if a.references else ""))
     for name, r in rows.items():
-        print(f"{name:16s} | {r['mean']:5.1f} | {r['worst']:6.1f} | {r['flexion']:5.1f} deg | {r['fps']:8.1f}"
+        print(f"{name:16s} | {r['mean']:5.1f} | {r['worst']:6.1f} | {r['flexion'][0]:5.1f}, {r['flexion'][1]:5.1f} deg | {r['fps']:8.1f}"
               + (f" | {r['floor']:5.1f} | {r['from_floor']:14.1f} | {r['own']:11.1f} | {r['fps_ratio']:.2f}"
                  if a.references else ""))
     if len(rows) > 1:
