@@ -2,7 +2,8 @@
 model ``kms2pin import`` makes of the same skeleton; accuracy in mm at 13 joints, and speed.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion.py [--only walk-2cam-320,...]
-        [--bvh FILE] [--frames N] [--seed 0] [--option NAME=VALUE] [--no-references] [--cache DIR]
+        [--bvh FILE] [--frames N] [--seed 0] [--option NAME=VALUE] [--defaults] [--no-references]
+        [--cache DIR]
 
 What is measured (docs/benchmarks.md, "Real human motion"):
 
@@ -22,7 +23,9 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   from its centre, 2-2.8 m high, one lens that keeps the whole path in every view; one
   camera is the first of them, two the first two, four all.  320x240 and 640x480.
 - **The track**: :class:`kms2pin.ecm.Tracker` started at the floor pose of the first frame
-  (below), not at the truth; the options of the case (one camera: the documented priors).
+  (below), not at the truth; with the presets for people (``kms2pin.ecm.PEOPLE``: the learnt
+  motion model and the reach search; one camera ``PEOPLE_ONE_CAMERA``: those and the
+  upright and rest priors), or the tracker's defaults (``--defaults``).
 - **Errors** at the 13 joints (hips, knees, ankles, shoulders, elbows, wrists, the neck),
   the mean distance per frame in mm, no alignment: the mean over the frames, the median,
   the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee
@@ -55,7 +58,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pinocchio as pin  # noqa: E402
 
 from kms2pin.bvh import ImportOptions, import_bvh, read_bvh  # noqa: E402
-from kms2pin.ecm import Camera, Tracker  # noqa: E402
+from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.lang import parse_text  # noqa: E402
@@ -85,9 +88,9 @@ MOTIONS = {"walk": 1.0, "fast": 2.0}
 #: the lab's cameras: (azimuth from the path's main direction, deg; distance from the path's
 #: centre, m; height, m); n cameras are the first n
 CAMERAS = ((60.0, 6.0, 2.0), (150.0, 6.5, 2.8), (240.0, 7.0, 2.4), (330.0, 5.5, 2.2))
-#: one camera sees a person walking with the upright and rest priors (PEOPLE_ONE_CAMERA)
-ONE_CAMERA = {"upright": 0.1, "rest_prior": 0.01}
-CASES = {f"{m}-{n}cam-{w}": (m, n, w // 320, ONE_CAMERA if n == 1 else {})
+#: the cases: (motion, cameras, size as a multiple of 320x240, the preset: PEOPLE_ONE_CAMERA
+#: with one camera, PEOPLE with more)
+CASES = {f"{m}-{n}cam-{w}": (m, n, w // 320, PEOPLE_ONE_CAMERA if n == 1 else PEOPLE)
          for m in MOTIONS for n in (2, 4, 1) for w in (320, 640)}
 
 
@@ -262,10 +265,12 @@ def ecm_from_floor(seq: Sequence, cameras, masks, options: dict) -> np.ndarray:
     return np.array([tr.refine(q, m, source=f"frame {k}")[0] for k, (q, m) in enumerate(zip(seq.floor, masks))])
 
 
-def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references: bool, options: dict) -> dict:
-    """Track one case and print its rows; returns its figures."""
-    motion, n, factor, case_options = CASES[name]
-    options = {**case_options, **options}
+def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references: bool, options: dict,
+             preset: bool = True) -> dict:
+    """Track one case (with its preset unless not ``preset``: the tracker's defaults) and
+    print its rows; returns its figures."""
+    motion, n, factor, case_preset = CASES[name]
+    options = {**(case_preset if preset else {}), **options}
     cameras = rig(seq.path, n, factor)
     truth = np.array([points(seq.subject, q, JOINTS) for q in seq.q])
     masks = rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
@@ -305,6 +310,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0, help="the masks' noise seed")
     p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                    help="a Tracker option for every case (repeatable)")
+    p.add_argument("--defaults", action="store_true",
+                   help="track with the tracker's defaults, not the cases' presets (PEOPLE, PEOPLE_ONE_CAMERA)")
     p.add_argument("--no-references", dest="references", action="store_false",
                    help="leave out the floor, ECM from the floor and the own renders")
     p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kms2pin-realmotion",
@@ -329,7 +336,7 @@ def main() -> None:
         motion = CASES[name][0]
         if motion not in sequences:
             sequences[motion] = load_sequence(a.bvh, motion, a.frames)
-        rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options)
+        rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options, not a.defaults)
     print("\ncase             |  mean |  worst | knees, elbows | frames/s" + (" | floor | ECM from floor | own renders | "
                                                                       "fr/s real / own" if a.references else ""))
     for name, r in rows.items():

@@ -343,9 +343,12 @@ class Preset(Mapping):
 #: masks from a real segmentation (``track --video`` uses it): the fit is noisy, and the
 #: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
-#: a person walking or standing, seen by one camera: the upright and rest priors hold
-#: what one view does not fix (docs/design/tracking-history.md)
-PEOPLE_ONE_CAMERA = Preset("people, one camera", {"upright": 0.1, "rest_prior": 0.01})
+#: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
+#: motion model and the reach search (docs/tracking.md, "Real motion")
+PEOPLE = Preset("people", {"prediction": "learnt", "reach_search": True})
+#: a person walking or standing, seen by one camera: :data:`PEOPLE`, and the upright and
+#: rest priors hold what one view does not fix (docs/design/tracking-history.md)
+PEOPLE_ONE_CAMERA = Preset("people, one camera", {**PEOPLE, "upright": 0.1, "rest_prior": 0.01})
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -14,6 +14,7 @@ from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.options import (
     GROUPS,
+    PEOPLE,
     PEOPLE_ONE_CAMERA,
     SEGMENTED_MASKS,
     IterationOptions,
@@ -73,9 +74,11 @@ def test_options_and_keywords_give_the_same_track():
     motion = make_motion(robot, "walk", 8)
     frames = [render(robot, q, cams) for q in motion]
     opts = TrackerOptions(priors=PriorOptions(upright=0.1, rest_prior=0.01),
-                          iteration=IterationOptions(max_iterations=6))
+                          iteration=IterationOptions(max_iterations=6, prediction="learnt"),
+                          limbs=LimbSearchOptions(reach_search=True))
     a = Tracker(robot, cams, opts, q0=motion[0])
-    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, max_iterations=6)
+    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, max_iterations=6, prediction="learnt",
+                reach_search=True)
     assert a.options == b.options
     for m in frames:
         ra, rb = a.step(m), b.step(m)
@@ -85,6 +88,9 @@ def test_options_and_keywords_give_the_same_track():
     d = Tracker(robot, cams, q0=motion[0], max_iterations=6, **PEOPLE_ONE_CAMERA)
     assert c.options == d.options == a.options
     assert Tracker(robot, cams, SEGMENTED_MASKS).options.limbs.limb_search_drop == 0.03
+    people = Tracker(robot, cams, PEOPLE)  # one camera's preset is this one's and the priors
+    assert people.reach is not None and people.options.iteration.prediction == "learnt"
+    assert dict(PEOPLE).items() <= dict(PEOPLE_ONE_CAMERA).items()
 
 
 def test_overrides_go_over_the_options_and_each_option_is_in_one_group():
