@@ -32,6 +32,9 @@ def add_tracker_arguments(p: argparse.ArgumentParser) -> None:
             off = cli.flag.startswith("--no-")
             p.add_argument(cli.flag, dest=cli_dest(f), action="store_const", const=not off, default=None,
                            help=("turn off: " if off else "") + help_text)
+        elif f.metadata.get("choices") is not None:
+            p.add_argument(cli.flag, dest=cli_dest(f), choices=f.metadata["choices"], default=None,
+                           help=help_text + _default_words(f))
         elif isinstance(f.default, tuple):
             p.add_argument(cli.flag, dest=cli_dest(f), type=float, nargs=len(f.default), default=None,
                            metavar=tuple("XYZW"[: len(f.default)]),

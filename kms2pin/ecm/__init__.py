@@ -14,6 +14,7 @@ from kms2pin.ecm.evaluate import evaluate
 from kms2pin.ecm.limbs import limb_joints
 from kms2pin.ecm.motions import MOTIONS, make_motion
 from kms2pin.ecm.options import (
+    PEOPLE,
     PEOPLE_ONE_CAMERA,
     SEGMENTED_MASKS,
     HypothesisOptions,
@@ -53,6 +54,7 @@ __all__ = [
     "LimbSearchOptions",
     "MOTIONS",
     "MStepOptions",
+    "PEOPLE",
     "PEOPLE_ONE_CAMERA",
     "PriorOptions",
     "ProjectionError",

@@ -47,7 +47,8 @@ REFINED = {"swing": 2, "exchange": 1, "reset": 1}
 class LimbMove:
     """A move of the limb search: ``"swing"`` (the first joint reflected about its rest
     angle, the joints below kept or put back at rest), ``"reset"`` (the joints below the
-    first put back at rest) or ``"exchange"`` (twin limbs' angles exchanged).  ``joints``:
+    first put back at rest), ``"exchange"`` (twin limbs' angles exchanged) or, of the
+    reach search (:mod:`~kms2pin.ecm.reach`), ``"reach"`` (a lost body re-aimed).  ``joints``:
     the limb's first joint, or the twins' (left, right); ``indices``: every q index moved."""
 
     kind: str
@@ -60,6 +61,8 @@ class LimbMove:
             return f"put the joints below '{self.joints[0]}' back at rest"
         if self.kind == "swing":
             return f"swung '{self.joints[0]}' the other way"
+        if self.kind == "reach":
+            return f"pointed '{self.joints[0]}' at the masks"
         return f"swapped '{self.joints[0]}' and '{self.joints[1]}'"
 
 

@@ -31,7 +31,7 @@ from .estep import UnionEStep
 from .masks import Views
 from .mstep import BodyView, fit_bodies
 from .options import TrackerOptions
-from .prediction import Motion, image_motion, outline_pixels, outline_points
+from .prediction import Motion, VelocityGain, image_motion, outline_pixels, outline_points
 from .priors import DepthPrior
 from .silhouette import PoseCache, silhouette_iou
 from .sizes import BodySizes
@@ -58,7 +58,14 @@ class FrameECM:
         self.estep = UnionEStep(sil.max_pixels, sil.outlier, sil.outlier_px)
         self.poses = PoseCache(robot)
         self.motion = Motion(robot, options.iteration.max_prediction_deg)
+        self.forget_motion()
         self._depth: DepthPrior | None = None
+
+    def forget_motion(self) -> None:
+        """Start the learnt motion model afresh (``prediction="learnt"``; else nothing)."""
+        it = self.options.iteration
+        if it.prediction == "learnt":
+            self.motion.learnt = VelocityGain(self.robot.model.nv, it.prediction_memory)
 
     def e_step(self, q: np.ndarray, cameras: Sequence[Camera], masks: Sequence[np.ndarray],
                delta_px: float) -> tuple[list[pin.SE3], list[list[BodyView]]]:

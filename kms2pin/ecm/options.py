@@ -117,7 +117,11 @@ class IterationOptions(_Group):
         range=Range(0.0, open_lo=True, none_ok=True),
         cli=Cli("--tol-px", "PX", none=0.0))
     prediction: str = option("constant_velocity", "each frame starts from the last frame's motion carried on, "
-                             "or from the last pose", choices=("constant_velocity", "previous"))
+                             "from the share of it that a motion model learnt on the past frames carries on "
+                             "('learnt'), or from the last pose", choices=("constant_velocity", "learnt", "previous"),
+                             cli=Cli("--prediction", "HOW"))
+    prediction_memory: float = option(10.0, "frames the learnt motion model remembers (their weight falls by "
+                                            "1 - 1/memory a frame)", range=Range(1.0, open_lo=True))
     max_prediction_deg: float = option(20.0, "cap on each joint's predicted motion per frame (degrees; the root's "
                                              "translation as in tol_deg)", range=Range(0.0))
     delta_start: float = option(2.8, "edge width of the sharp silhouettes on a frame's first iteration (pixels), "
@@ -256,6 +260,8 @@ class LimbSearchOptions(_Group):
                                          range=Range(-np.inf))
     limb_margin: float = option(0.005, "how far that hypothesis's running fit must lead to replace the pose",
                                 range=Range(0.0))
+    reach_search: bool = option(False, "re-aim a limb whose body lies over the background in some camera, "
+                                       "pointing it at the masks (kms2pin.ecm.reach)", cli=Cli("--reach-search"))
 
 
 #: the groups of :class:`TrackerOptions`: attribute name -> class
@@ -341,9 +347,12 @@ class Preset(Mapping):
 #: masks from a real segmentation (``track --video`` uses it): the fit is noisy, and the
 #: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
-#: a person walking or standing, seen by one camera: the upright and rest priors hold
-#: what one view does not fix (docs/design/tracking-history.md)
-PEOPLE_ONE_CAMERA = Preset("people, one camera", {"upright": 0.1, "rest_prior": 0.01})
+#: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
+#: motion model and the reach search (docs/tracking.md, "Real motion")
+PEOPLE = Preset("people", {"prediction": "learnt", "reach_search": True})
+#: a person walking or standing, seen by one camera: :data:`PEOPLE`, and the upright and
+#: rest priors hold what one view does not fix (docs/design/tracking-history.md)
+PEOPLE_ONE_CAMERA = Preset("people, one camera", {**PEOPLE, "upright": 0.1, "rest_prior": 0.01})
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -17,7 +17,43 @@ from ..errors import RobotError
 from ..robot import Robot
 from .camera import Camera
 
-__all__ = ["Motion", "image_motion", "outline_pixels", "outline_points"]
+__all__ = ["LEARNT_PRIOR_DEG", "Motion", "VelocityGain", "image_motion", "outline_pixels", "outline_points"]
+
+#: the learnt motion model's prior (:class:`VelocityGain`): a steady motion of this many
+#: degrees a frame, carried on in full
+LEARNT_PRIOR_DEG = 1.0
+
+
+class VelocityGain:
+    """A motion model learnt as the track goes (``prediction="learnt"``): per coordinate,
+    the share ``a`` of the last frame's velocity that the next frame carries on, the
+    least-squares fit of v_k = a v_(k-1) over the past frames' velocities, each frame's
+    weight falling by 1 - 1/``memory``: a = Σ v_k v_(k-1) / Σ v_(k-1)², clipped to [0, 1].
+    A steady motion has a = 1 (constant velocity); a coordinate that jitters about a
+    pose the images do not fix (its velocity changing sign from frame to frame) has
+    a = 0, and is not carried away by its own noise.  Both sums start at
+    :data:`LEARNT_PRIOR_DEG` squared (a = 1 until the velocities say otherwise).
+    Velocities are on the angles' scale (:meth:`Motion.scaled`), in radians."""
+
+    def __init__(self, nv: int, memory: float):
+        prior = np.radians(LEARNT_PRIOR_DEG) ** 2
+        self.decay = 1.0 - 1.0 / float(memory)
+        self.num = np.full(nv, prior)
+        self.den = np.full(nv, prior)
+        self.last: np.ndarray | None = None
+
+    def update(self, v: np.ndarray | None) -> None:
+        """Fold in a frame's velocity ``v`` (None: a frame without one, which breaks the
+        chain of successive velocities)."""
+        if v is not None and self.last is not None:
+            self.num = self.decay * self.num + v * self.last
+            self.den = self.decay * self.den + self.last * self.last
+        self.last = None if v is None else v.copy()
+
+    @property
+    def gain(self) -> np.ndarray:
+        """(nv,) the share of the velocity carried on, in [0, 1]."""
+        return np.clip(self.num / self.den, 0.0, 1.0)
 
 
 class Motion:
@@ -30,6 +66,8 @@ class Motion:
         self.max_prediction = np.radians(float(max_prediction_deg))
         #: the velocity indices of prismatic joints (length units, like the root's translation)
         self.slides = np.array([j.idx_v for j in robot.joints if j.kind == "prismatic"], dtype=int)
+        #: the learnt motion model (None: constant velocity)
+        self.learnt: VelocityGain | None = None
 
     def scaled(self, v: np.ndarray) -> np.ndarray:
         """A tangent vector ``v`` with its translations on the angles' scale (module docstring), in place."""
@@ -58,18 +96,27 @@ class Motion:
         return np.clip(v, -cap, cap)
 
     def predict(self, cur: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
-        """``cur`` moved on by the capped motion from ``prev`` (constant velocity), clipped
-        into the joint limits, and with loop closures projected back onto them (``cur``
-        where they cannot be closed there); ``cur`` itself without a ``prev``."""
+        """``cur`` moved on by the capped motion from ``prev`` (constant velocity, or its
+        learnt share per coordinate), clipped into the joint limits, and with loop closures
+        projected back onto them (``cur`` where they cannot be closed there); ``cur`` itself
+        without a ``prev``."""
         if prev is None:
             return cur
-        q = self.robot.clamp(pin.integrate(self.robot.model, cur, self.velocity(prev, cur)))
+        v = self.velocity(prev, cur)
+        if self.learnt is not None:
+            v *= self.learnt.gain
+        q = self.robot.clamp(pin.integrate(self.robot.model, cur, v))
         if self.robot.closures:
             try:
                 q = self.robot.project(q)
             except RobotError:
                 q = cur
         return q
+
+    def learn(self, prev: np.ndarray | None, cur: np.ndarray) -> None:
+        """Fold the motion from ``prev`` to ``cur`` (None: no velocity) into the learnt model."""
+        if self.learnt is not None:
+            self.learnt.update(None if prev is None else self.scaled(pin.difference(self.robot.model, prev, cur)))
 
 
 def outline_points(Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray) -> np.ndarray:

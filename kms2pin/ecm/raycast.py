@@ -150,7 +150,8 @@ def render_labels(camera: Camera, bodies: Sequence[Body]) -> tuple[np.ndarray, n
     Returns ``labels`` (H,W) int32 with the index of the nearest body hit by
     each pixel's ray (-1 for background) and ``depth`` (H,W) float64, the
     camera z of that first hit (``inf`` on background; 0 where the camera is
-    inside the body).
+    inside the body).  Each body's rays are cast only in the image box of its
+    world-axis bounding box (:func:`_pixel_box`).
     """
     dirs, centre = camera.rays(pixel_centres(camera))
     z_axis = camera.world_R_camera[:, 2]
@@ -158,17 +159,54 @@ def render_labels(camera: Camera, bodies: Sequence[Body]) -> tuple[np.ndarray, n
     n = len(dirs)
     best = np.full(n, np.inf)
     labels = np.full(n, -1, dtype=np.int32)
+    grid = np.arange(n).reshape(camera.shape)
     for i, body in enumerate(bodies):
-        t_near, t_far = intersect(centre, dirs, body)
+        box = _pixel_box(camera, body)
+        if box is None:
+            continue
+        rows, cols = box
+        idx = grid[rows, cols].ravel()
+        t_near, t_far = intersect(centre, dirs[idx], body)
         with np.errstate(invalid="ignore"):
             hit = t_far > 0
         t_hit = np.where(hit, np.maximum(t_near, 0.0), np.inf)
-        depth = np.where(hit, t_hit * dz, np.inf)
-        nearer = depth < best
-        best[nearer] = depth[nearer]
-        labels[nearer] = i
+        depth = np.where(hit, t_hit * dz[idx], np.inf)
+        nearer = depth < best[idx]
+        best[idx[nearer]] = depth[nearer]
+        labels[idx[nearer]] = i
     shape = camera.shape
     return labels.reshape(shape), best.reshape(shape)
+
+
+def _world_box(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """The body's bounding box along the world axes: (lowest corner, highest corner)."""
+    if isinstance(body, Capsule):
+        ends = np.stack([np.asarray(body.start, float), np.asarray(body.end, float)])
+        return ends.min(axis=0) - body.radius, ends.max(axis=0) + body.radius
+    R, t = pose_arrays(body[0])
+    half = np.sqrt(((R * semi_axes_array(body[1])) ** 2).sum(axis=1))  # the support along each world axis
+    return t - half, t + half
+
+
+def _pixel_box(camera: Camera, body: Body) -> tuple[slice, slice] | None:
+    """The rows and columns that can see ``body``: the image box of its world bounding
+    box's corners, all pixels when a corner is not in front of the camera or the camera
+    has lens distortion (a projected box then need not hold the body's image), None when
+    the box is off the image."""
+    full = (slice(0, camera.height), slice(0, camera.width))
+    if camera.dist is not None and np.any(camera.dist):
+        return full
+    lo, hi = _world_box(body)
+    corners = np.array([[a[0], b[1], c[2]] for a in (lo, hi) for b in (lo, hi) for c in (lo, hi)])
+    if np.any(camera.depth(corners) <= 0):
+        return full
+    uv = camera.project(corners)
+    u0, v0 = np.floor(uv.min(axis=0)).astype(int)
+    u1, v1 = np.ceil(uv.max(axis=0)).astype(int)
+    u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, camera.width - 1), min(v1, camera.height - 1)
+    if u0 > u1 or v0 > v1:
+        return None
+    return slice(v0, v1 + 1), slice(u0, u1 + 1)
 
 
 def render_mask(camera: Camera, bodies: Sequence[Body]) -> np.ndarray:

@@ -19,7 +19,7 @@ from .camera import Camera
 from .mstep import body_images, closest_approach, pose_arrays
 from .projection import body_bbox
 
-__all__ = ["PoseCache", "model_silhouette", "silhouette_iou", "visible_bodies"]
+__all__ = ["PoseCache", "body_coverage", "model_silhouette", "silhouette_iou", "visible_bodies"]
 
 
 class PoseCache:
@@ -52,6 +52,21 @@ def model_silhouette(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray
         a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
         model[img.slices] |= (a2 <= 1.0).reshape(img.shape)
     return model
+
+
+def body_coverage(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, mask: np.ndarray,
+                  arrays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(n, 2) per body: the pixels of its own silhouette in ``camera`` (as in
+    :func:`model_silhouette`) and how many of them ``mask`` (bool) holds."""
+    out = np.zeros((len(poses), 2), dtype=int)
+    images = body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays)
+    for i, (P, li, img) in enumerate(zip(poses, inner, images)):
+        if img is None:
+            continue
+        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
+        sil = (a2 <= 1.0).reshape(img.shape)
+        out[i] = np.count_nonzero(sil), np.count_nonzero(sil & mask[img.slices])
+    return out
 
 
 def silhouette_iou(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequence[Camera],

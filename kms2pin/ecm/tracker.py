@@ -37,6 +37,7 @@ from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
 from .priors import RestPrior, TwistPrior, UprightPrior
+from .reach import ReachSearch
 from .silhouette import visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
@@ -52,7 +53,7 @@ class Tracker:
     Args:
         robot: the model (``root="free"`` for a moving subject).
         cameras: one :class:`Camera` per mask stream, or a single camera.
-        options: a :class:`TrackerOptions` or a preset (``SEGMENTED_MASKS``,
+        options: a :class:`TrackerOptions` or a preset (``SEGMENTED_MASKS``, ``PEOPLE``,
             ``PEOPLE_ONE_CAMERA``); default the defaults.
         q0: starting pose (default ``robot.q_rest``); every camera must see part of
             the model there, else :class:`CameraError`.
@@ -89,13 +90,14 @@ class Tracker:
             priors.append(twist)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
+        self.reach = ReachSearch(robot, self.ecm) if opts.limbs.reach_search else None
         hyp, lim = opts.hypotheses, opts.limbs
         kinds = {"mirror": hyp.mirror_margin} if hyp.mirror_hypothesis else {}
         kinds |= {"swap": hyp.swap_margin} if hyp.swap_hypothesis else {}
         kinds |= {"limb": lim.limb_margin} if lim.limb_hypothesis else {}
         self.hypotheses = Hypotheses(robot, self.ecm, self.ecm.motion, kinds, self._sagittal, self._symmetry,
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
-                                     opts.iteration.prediction == "constant_velocity")
+                                     opts.iteration.prediction != "previous")
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -179,6 +181,7 @@ class Tracker:
         if all(problems):  # nothing to go on: the pose is kept, with no velocity
             what = "mask nearly full" if "mask nearly full" in problems else "empty mask"
             res = FrameResult(self.q.copy(), self.robot.maximal_coordinates(self.q), 0, 0.0, False, (what,), timings)
+            self.ecm.motion.learn(None, self.q)
             state.advance(self.q, keep_velocity=False)
             self.hypotheses.alts.clear()
             return res
@@ -187,13 +190,16 @@ class Tracker:
         if opts.sizes.calibrate_sizes and not self.sizes.calibrated:
             self._calibrate(views, self.q)
         q = self.q.copy()
-        if opts.iteration.prediction == "constant_velocity":
+        if opts.iteration.prediction != "previous":
             q = self.ecm.motion.predict(q, state.prev)
         coarse = self._coarse(views)
         q, it, converged = self.ecm.run(q, views, timings, coarse=coarse)
         fit = self.ecm.fit(q, views)
         q, fit, moved, spawn = self._limb_search(q, fit, views, coarse, timings)
         flags += moved
+        if self.reach is not None:
+            q, fit, reached = self.reach.search(q, fit, views, views.binned(self._binned), coarse, timings)
+            flags += tuple(f for move in reached for f in self._moved(q, move))
         if self.hypotheses.margins:
             q, fit, switched = self.hypotheses.step(q, fit, state, views, timings, coarse,
                                                     lambda: views.binned(self._binned), spawn)
@@ -219,6 +225,7 @@ class Tracker:
         res = FrameResult(q.copy(), self.robot.maximal_coordinates(q), it, fit, converged, flags, timings)
         # a poorly fitting pose is no basis for a velocity: coasting on it carries a lost
         # track out of the view
+        self.ecm.motion.learn(None if poor else self.q, q)
         state.advance(q, keep_velocity=not poor)
         return res
 
@@ -341,6 +348,7 @@ class Tracker:
         axis, e.g. when the subject has been found again after leaving the view."""
         self._reset(q0, "restart pose")
         self.hypotheses.alts.clear()
+        self.ecm.forget_motion()
 
     def _reset(self, q0, what: str) -> None:
         q0 = np.array(q0, dtype=float)

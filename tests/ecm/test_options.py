@@ -14,6 +14,7 @@ from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.options import (
     GROUPS,
+    PEOPLE,
     PEOPLE_ONE_CAMERA,
     SEGMENTED_MASKS,
     IterationOptions,
@@ -73,9 +74,11 @@ def test_options_and_keywords_give_the_same_track():
     motion = make_motion(robot, "walk", 8)
     frames = [render(robot, q, cams) for q in motion]
     opts = TrackerOptions(priors=PriorOptions(upright=0.1, rest_prior=0.01),
-                          iteration=IterationOptions(max_iterations=6))
+                          iteration=IterationOptions(max_iterations=6, prediction="learnt"),
+                          limbs=LimbSearchOptions(reach_search=True))
     a = Tracker(robot, cams, opts, q0=motion[0])
-    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, max_iterations=6)
+    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, max_iterations=6, prediction="learnt",
+                reach_search=True)
     assert a.options == b.options
     for m in frames:
         ra, rb = a.step(m), b.step(m)
@@ -85,6 +88,9 @@ def test_options_and_keywords_give_the_same_track():
     d = Tracker(robot, cams, q0=motion[0], max_iterations=6, **PEOPLE_ONE_CAMERA)
     assert c.options == d.options == a.options
     assert Tracker(robot, cams, SEGMENTED_MASKS).options.limbs.limb_search_drop == 0.03
+    people = Tracker(robot, cams, PEOPLE)  # one camera's preset is this one's and the priors
+    assert people.reach is not None and people.options.iteration.prediction == "learnt"
+    assert dict(PEOPLE).items() <= dict(PEOPLE_ONE_CAMERA).items()
 
 
 def test_overrides_go_over_the_options_and_each_option_is_in_one_group():
@@ -117,8 +123,10 @@ def test_the_track_command_has_a_flag_for_each_option_that_declares_one(capsys):
     for f in cli_fields():
         assert f.metadata["cli"].flag in shown and " ".join(f.metadata["help"].split()) in shown
     args = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--tol-px", "0", "--upright", "0.1",
-                              "--no-mirror-hypothesis", "--up", "0", "0", "1", "--size-every", "3"])
+                              "--no-mirror-hypothesis", "--up", "0", "0", "1", "--size-every", "3",
+                              "--prediction", "learnt", "--reach-search"])
     opts = tracker_options(args)
+    assert opts.iteration.prediction == "learnt" and opts.limbs.reach_search is True
     assert opts.iteration.tol_px is None and opts.priors.upright == 0.1 and opts.sizes.size_every == 3
     assert opts.hypotheses.mirror_hypothesis is False and opts.priors.up == (0.0, 0.0, 1.0)
     assert opts.limbs.limb_search is None and opts.hypotheses.swap_hypothesis is None  # not given: automatic

@@ -3,10 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.prediction import image_motion, outline_pixels, outline_points
+from kms2pin.ecm.prediction import (
+    LEARNT_PRIOR_DEG,
+    Motion,
+    VelocityGain,
+    image_motion,
+    outline_pixels,
+    outline_points,
+)
 from kms2pin.ecm.silhouette import PoseCache
 from kms2pin.ecm.tracker import Tracker
 
@@ -59,3 +67,55 @@ def test_one_camera_still_subject_converges_on_the_outline_test():
     # one view fixes depth only through the outline's size: the track settles about 3 %
     # of the height off in depth (as with the joint-angle test alone), not further
     assert centre_error(robot, res[-1].q, qt) < 5.0
+
+
+def test_the_learnt_share_is_the_least_squares_fit_of_each_velocity_on_the_one_before():
+    rng = np.random.default_rng(3)
+    memory, n = 6.0, 25
+    v = rng.normal(size=(n, 4)) * 0.05 + np.array([0.04, -0.03, 0.0, 0.01])
+    gain = VelocityGain(4, memory)
+    for x in v:
+        gain.update(x)
+    # an independent sum: frame k (of the n - 1 pairs) weighs (1 - 1/memory)^(n - 1 - k), the prior the oldest
+    w = (1.0 - 1.0 / memory) ** np.arange(n - 2, -1, -1)
+    prior = np.radians(LEARNT_PRIOR_DEG) ** 2 * (1.0 - 1.0 / memory) ** (n - 1)
+    expected = (prior + (w[:, None] * v[1:] * v[:-1]).sum(0)) / (prior + (w[:, None] * v[:-1] ** 2).sum(0))
+    np.testing.assert_allclose(gain.gain, np.clip(expected, 0.0, 1.0), rtol=1e-12)
+
+
+def test_a_steady_motion_is_carried_on_and_a_jitter_is_not():
+    gain = VelocityGain(2, 10.0)
+    for k in range(30):
+        gain.update(np.radians([3.0, 5.0 * (-1) ** k]))
+    assert gain.gain[0] == pytest.approx(1.0) and gain.gain[1] == 0.0
+    gain.update(None)  # a frame without a velocity: the next one pairs with nothing
+    before = gain.gain.copy()
+    gain.update(np.radians([-40.0, 40.0]))
+    np.testing.assert_array_equal(gain.gain, before)
+
+
+def test_the_learnt_prediction_moves_a_jittering_joint_by_its_share_only():
+    robot = _robot("lowerbody")
+    motion = Motion(robot, 20.0)
+    motion.learnt = VelocityGain(robot.nv, 10.0)
+    prev, cur = robot.q_rest.copy(), robot.q_rest.copy()
+    cur[7] += np.radians(2.0)  # one joint moves 2 deg a frame, steadily
+    cur[8] += np.radians(4.0)  # another jitters by 4 deg
+    for k in range(20):
+        motion.learn(prev, cur)
+        prev, cur = cur, cur.copy()
+        cur[7] += np.radians(2.0)
+        cur[8] += np.radians(4.0) * (-1) ** (k + 1) * 2
+    step = np.degrees(pin.difference(robot.model, cur, motion.predict(cur, prev)))
+    assert step[6] == pytest.approx(2.0, abs=1e-6) and abs(step[7]) < 1e-9
+
+
+def test_prediction_learnt_is_a_tracker_option_whose_model_a_restart_forgets():
+    robot, cams, _, masks, kw = _still_subject()
+    tr = Tracker(robot, cams, prediction="learnt", **kw)
+    tr.step(masks)
+    tr.step(masks)
+    assert tr.ecm.motion.learnt.last is not None
+    tr.restart(robot.q_rest)
+    assert tr.ecm.motion.learnt.last is None
+    assert Tracker(robot, cams).ecm.motion.learnt is None

@@ -161,3 +161,31 @@ def test_a_capsule_render_holds_every_inside_point_and_only_pixels_whose_rays_me
     t = np.linspace(0.0, 12.0, 2401)
     closest = np.array([_segment_distance(origin + t[:, None] * d, capsule.start, capsule.end).min() for d in dirs[::7]])
     assert len(closest) > 100 and (closest <= capsule.radius + 0.01).all()
+
+
+@pytest.mark.parametrize("dist", [None, DIST])
+def test_a_render_cast_only_in_each_body_s_image_box_equals_casting_every_pixel_at_every_body(dist):
+    rng = np.random.default_rng(5)
+    cam = random_camera(rng, kind=1, dist=dist)
+    T = cam.world_T_camera
+    bodies = []
+    for k in range(12):  # in view, across the image border, one behind the camera
+        depth = -3.0 if k == 0 else rng.uniform(2.0, 8.0)
+        at = T.translation + T.rotation @ np.array([*rng.uniform(-0.6, 0.6, 2) * depth, depth])
+        pose, axes = pin.SE3(random_rotation(rng), at), rng.uniform(0.05, 0.8, 3)
+        bodies.append(Capsule.of_ellipsoid(pose, axes) if k % 2 else (pose, axes))
+    labels, depth = render_labels(cam, bodies)
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+    dirs, origin = cam.rays(np.column_stack([u.ravel(), v.ravel()]).astype(float))
+    dz = dirs @ T.rotation[:, 2]
+    hits = []
+    for body in bodies:  # every ray against every body, the nearest hit in front
+        near, far = (intersect_capsule(origin, dirs, body) if isinstance(body, Capsule)
+                     else intersect_ellipsoid(origin, dirs, *body))
+        with np.errstate(invalid="ignore"):
+            hits.append(np.where(far > 0, np.maximum(near, 0.0) * dz, np.inf))
+    hits = np.array(hits)
+    expected = np.where(np.isfinite(hits.min(axis=0)), hits.argmin(axis=0), -1)
+    assert (expected >= 0).sum() > 2000 and len(set(expected.tolist())) > 6
+    np.testing.assert_array_equal(labels.ravel(), expected)
+    np.testing.assert_allclose(depth.ravel(), hits.min(axis=0))

@@ -7,7 +7,7 @@ import numpy as np
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.initialization import coarse_search, scaled_camera
 from kms2pin.ecm.raycast import render_mask
-from kms2pin.ecm.silhouette import model_silhouette, silhouette_iou
+from kms2pin.ecm.silhouette import body_coverage, model_silhouette, silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
@@ -50,3 +50,17 @@ def test_the_initialization_scores_candidates_with_the_trackers_fit():
     for score, _, _, q in cands:
         assert score == tracker.fit(q, masks)
     assert cands[0][0] > 0.97 > cands[-1][0]
+
+
+def test_each_body_s_coverage_counts_its_own_silhouette_and_the_mask_under_it():
+    robot = _robot("lowerbody")
+    cam = Camera.default()
+    poses = robot.body_poses(robot.q_rest)
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    rng = np.random.default_rng(1)
+    mask = rng.random(cam.shape) < 0.5
+    counts = body_coverage(cam, poses, inner, mask)
+    for i in range(len(poses)):  # each body alone, by the union's own function
+        own = model_silhouette(cam, poses[i : i + 1], inner[i : i + 1])
+        assert counts[i].tolist() == [int(own.sum()), int((own & mask).sum())]
+    assert counts[:, 0].min() > 50

@@ -1,0 +1,351 @@
+"""Real human motion (issue #31): CMU motion capture rendered as capsules, tracked with the
+model ``kms2pin import`` makes of the same skeleton; accuracy in mm at 13 joints, and speed.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion.py [--only walk-2cam-320,...]
+        [--bvh FILE] [--frames N] [--seed 0] [--option NAME=VALUE] [--defaults] [--no-references]
+        [--cache DIR]
+
+What is measured (docs/benchmarks.md, "Real human motion"):
+
+- **The subject**: the BVH file imported exactly (every joint spherical, ``kms2pin import
+  --scale 0.05644 --fps 30``), rendered as capsules (``synth --shape capsule``: each body's
+  capsule, not its ellipsoid) at 30 Hz with 5 % noise (``synth --noise 0.05``).  ``fast``
+  is the same trial at twice the speed (imported at 15 frames/s and played at 30): every
+  frame's motion doubled.
+- **The model**: ``kms2pin import --hinge LeftKnee,RightKnee,LeftElbow,RightElbow`` (knees and
+  elbows hinged, as a careful user would), edited as a careful user would: the hinges
+  given anatomical limits (:data:`HINGE_LIMITS`), and (:data:`FIXED`) the pelvis sides
+  and the fingers, which the file never moves, and the thumbs, 1-2 pixels wide, made
+  fixed joints.  It differs from the subject in its
+  shape (ellipsoids, sized by the anthropometric table, against the capsules), in those
+  fixed joints, and in its hinges (CMU's knees and elbows turn about one axis: exact).
+- **The rig**: cameras around the walking path as a lab places them (:func:`rig`), 5.5-7 m
+  from its centre, 2-2.8 m high, one lens that keeps the whole path in every view; one
+  camera is the first of them, two the first two, four all.  320x240 and 640x480.
+- **The track**: :class:`kms2pin.ecm.Tracker` started at the floor pose of the first frame
+  (below), not at the truth; with the presets for people (``kms2pin.ecm.PEOPLE``: the learnt
+  motion model and the reach search; one camera ``PEOPLE_ONE_CAMERA``: those and the
+  upright and rest priors), or the tracker's defaults (``--defaults``).
+- **Errors** at the 13 joints (hips, knees, ankles, shoulders, elbows, wrists, the neck),
+  the mean distance per frame in mm, no alignment: the mean over the frames, the median,
+  the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee
+  and elbow flexion (the angle between the bones, from the joint positions) RMSE, the
+  knees' and the elbows' apart; frames/s.
+- **References**: the *floor*, the model fitted to the subject's true joint points on each
+  frame (:func:`floor_poses`: what the model can express at best); *ECM from the floor*,
+  one frame's ECM started at the floor pose on each frame (what the silhouettes pull the
+  best pose to; :meth:`Tracker.refine`); and *own renders*, the same track on the
+  model's own ellipsoids moving as the floor (the tracker's figure on its own renders, and
+  the baseline of the frames/s ratio).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import hashlib
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import pinocchio as pin  # noqa: E402
+
+from kms2pin.bvh import ImportOptions, import_bvh, read_bvh  # noqa: E402
+from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
+from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
+from kms2pin.ecm.synth import synthesize  # noqa: E402
+from kms2pin.lang import parse_text  # noqa: E402
+from kms2pin.robot import Robot  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+MOCAP = Path("shared") / "data" / "mocap" / "cmu_131_01_start_walk_stop.bvh"
+#: the shared CMU trial: ../shared/data/mocap beside the repository (a worktree's: further up)
+BVH = next((d / MOCAP for d in ROOT.parents if (d / MOCAP).exists()), ROOT.parent / MOCAP)
+SCALE = 0.05644  # CMU units to metres (the data's README)
+FPS = 30.0
+NOISE = 0.05
+#: the 13 joints, by the body whose joint point each is (a wrist: the hand's; CMU's 'Neck'
+#: joint, between the lower and the upper neck)
+JOINTS = ("LeftHip", "LeftKnee", "LeftAnkle", "RightHip", "RightKnee", "RightAnkle", "LeftShoulder", "LeftElbow",
+          "lhand", "RightShoulder", "RightElbow", "rhand", "Neck")
+#: flexion angles: (the joint, the one above it, the one below), by their places in JOINTS
+FLEXION = {"left knee": (1, 0, 2), "right knee": (4, 3, 5), "left elbow": (7, 6, 8), "right elbow": (10, 9, 11)}
+HINGES = ("LeftKnee", "RightKnee", "LeftElbow", "RightElbow")
+#: the hinges' limits a careful user adds (degrees; the import makes flexion positive)
+HINGE_LIMITS = (-5.0, 160.0)
+#: joints a careful user makes fixed: the pelvis sides and the fingers never move in CMU's
+#: files, and the thumbs are 1-2 pixels wide at these resolutions
+FIXED = ("LHipJoint", "RHipJoint", "LFingers", "RFingers", "LThumb", "RThumb")
+#: motions: the trial's playback speed
+MOTIONS = {"walk": 1.0, "fast": 2.0}
+#: the lab's cameras: (azimuth from the path's main direction, deg; distance from the path's
+#: centre, m; height, m); n cameras are the first n
+CAMERAS = ((60.0, 6.0, 2.0), (150.0, 6.5, 2.8), (240.0, 7.0, 2.4), (330.0, 5.5, 2.2))
+#: the cases: (motion, cameras, size as a multiple of 320x240, the preset: PEOPLE_ONE_CAMERA
+#: with one camera, PEOPLE with more)
+CASES = {f"{m}-{n}cam-{w}": (m, n, w // 320, PEOPLE_ONE_CAMERA if n == 1 else PEOPLE)
+         for m in MOTIONS for n in (2, 4, 1) for w in (320, 640)}
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """A motion: the ``subject`` (exact import) and its configurations ``q`` at 30 Hz, the
+    tracking ``model`` (hinged, :data:`FIXED` fixed) and its ``floor`` poses; ``path``
+    (frames, 3) the root's positions over the whole motion (the rig's)."""
+
+    name: str
+    subject: Robot
+    q: np.ndarray
+    model: Robot
+    floor: np.ndarray
+    path: np.ndarray
+
+
+def tracking_model(bvh, speed: float) -> tuple[Robot, np.ndarray]:
+    """The model a careful user tracks with (module docstring) and its import's
+    configurations with :data:`FIXED` left out (a start for the floor fit)."""
+    imp = import_bvh(bvh, ImportOptions(scale=SCALE, fps=FPS / speed, hinges=HINGES, name="model"))
+    text = imp.text
+    lines = {name: next(x for x in text.splitlines() if x.strip().startswith("constraint") and f", {name}.joint" in x)
+             for name in FIXED + HINGES}
+    for name in FIXED:
+        text = text.replace(lines[name], lines[name].replace("spherical(", "fixed("))
+    for name in HINGES:
+        text = text.replace(lines[name], lines[name].replace(", 0);", f", 0, {HINGE_LIMITS[0]:g}, {HINGE_LIMITS[1]:g});"))
+    spec = parse_text(text, "model.kms")
+    robot = Robot(spec, spec.system(), "free")
+    kept = [imp.robot.model.getJointId(robot.model.names[j]) for j in range(1, robot.model.njoints)]
+    cols = np.concatenate([np.arange(imp.robot.model.idx_qs[j], imp.robot.model.idx_qs[j] + imp.robot.model.nqs[j])
+                           for j in kept])
+    return robot, imp.q[:, cols]
+
+
+def points(robot: Robot, q: np.ndarray, names=None) -> np.ndarray:
+    """(n, 3) world positions (m) of the joint points of the bodies ``names`` (default:
+    every bound vector of every body, in the order of the spec)."""
+    robot.forward(q)
+    pin.updateFramePlacements(robot.model, robot.data)
+    oMf = robot.data.oMf
+    if names is not None:
+        return np.array([oMf[robot.model.getFrameId(n)].translation for n in names])
+    out = []
+    for body, fid in zip(robot.system.bodies, robot.frame_ids):
+        M = oMf[fid]
+        out += [M.act(np.asarray(b.pos, dtype=float)) for b in body.bvecs.values()]
+    return np.array(out)
+
+
+def floor_poses(model: Robot, subject: Robot, q_subject: np.ndarray, q_start: np.ndarray,
+                iterations: int = 8) -> np.ndarray:
+    """Per frame, the model's configuration nearest the subject's: every bound vector of
+    every body (the same names in both) put where the subject's is, in least squares
+    (Gauss-Newton on the points' Jacobians, from ``q_start``'s frame)."""
+    m, data = model.model, model.data
+    out = np.empty((len(q_subject), m.nq))
+    for k, qs in enumerate(q_subject):
+        target = points(subject, qs)
+        q = q_start[k].copy()
+        for _ in range(iterations):
+            p = points(model, q)
+            J = np.zeros((len(p), 3, m.nv))
+            row = 0
+            for body, fid in zip(model.system.bodies, model.frame_ids):
+                Jf = pin.getFrameJacobian(m, data, fid, pin.LOCAL_WORLD_ALIGNED)
+                centre = data.oMf[fid].translation
+                for _b in body.bvecs:
+                    r = p[row] - centre
+                    J[row] = Jf[:3] - pin.skew(r) @ Jf[3:]
+                    row += 1
+            J = J.reshape(-1, m.nv)
+            e = (target - p).ravel()
+            dv = np.linalg.solve(J.T @ J + 1e-8 * np.eye(m.nv), J.T @ e)
+            q = pin.integrate(m, q, dv)
+            if np.abs(dv).max() < 1e-9:
+                break
+        out[k] = q
+    return out
+
+
+def load_sequence(path: Path, motion: str, frames: int | None) -> Sequence:
+    """The subject, the model and the floor of ``motion`` (:data:`MOTIONS`) of the BVH file."""
+    bvh = read_bvh(path)
+    speed = MOTIONS[motion]
+    imp = import_bvh(bvh, ImportOptions(scale=SCALE, fps=FPS / speed, name="subject"))
+    model, start = tracking_model(bvh, speed)
+    q = imp.q[:frames]
+    return Sequence(motion, imp.robot, q, model, floor_poses(model, imp.robot, q, start[:frames]), imp.q[:, :3])
+
+
+def rig(q_root: np.ndarray, n: int, factor: int) -> list[Camera]:
+    """The first ``n`` of :data:`CAMERAS` around the path of the root positions
+    ``q_root`` (frames, 3), at 320x240 times ``factor``, all with the least field of view
+    that holds the whole path (0.5 m around the root's, 0-1.9 m high) in every view."""
+    xz = q_root[:, [0, 2]]
+    centre = xz.mean(axis=0)
+    _, _, vt = np.linalg.svd(xz - centre)
+    main = vt[0]  # the path's main direction on the ground
+    lo, hi = xz.min(axis=0) - 0.5, xz.max(axis=0) + 0.5
+    target = np.array([(lo[0] + hi[0]) / 2, 0.9, (lo[1] + hi[1]) / 2])
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (0.0, 1.9) for z in (lo[1], hi[1])])
+    places = []
+    for azimuth, distance, height in CAMERAS[:n]:
+        a = np.radians(azimuth)
+        d = np.cos(a) * main + np.sin(a) * np.array([-main[1], main[0]])
+        places.append(np.array([target[0] + distance * d[0], height, target[2] + distance * d[1]]))
+    fov = 0.0
+    for p in places:
+        c = Camera.look_at(p, target).to_camera(box)
+        fov = max(fov, 2 * np.degrees(np.arctan(np.abs(c[:, 1] / c[:, 2]).max())),
+                  2 * np.degrees(np.arctan(np.abs(c[:, 0] / c[:, 2]).max() * 3 / 4)))
+    return [Camera.look_at(p, target, width=320 * factor, height=240 * factor, fov_deg=1.05 * fov, name=f"cam{i}")
+            for i, p in enumerate(places)]
+
+
+def rendered(robot: Robot, q: np.ndarray, cameras: list[Camera], shape: str, seed: int, cache: Path | None):
+    """The masks of ``robot`` moving through ``q`` seen by ``cameras`` (``synth``'s
+    rendering and 5 % noise), kept in ``cache`` by a digest of everything they depend on."""
+    key = hashlib.sha1(repr((robot.urdf, q.round(9).tobytes(), [c.to_dict() for c in cameras], shape, seed,
+                             NOISE)).encode()).hexdigest()[:16]
+    path = None if cache is None else cache / f"masks-{key}.npz"
+    if path is not None and path.exists():
+        packed = np.load(path)["masks"]
+        return list(np.unpackbits(packed, axis=-1, count=cameras[0].width).astype(bool))
+    masks = [m for _, m in synthesize(robot, q, cameras, noise=NOISE, rng=np.random.default_rng(seed), shape=shape)]
+    if path is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(path, masks=np.packbits(np.array(masks), axis=-1))
+    return masks
+
+
+def joint_errors(model: Robot, qs, truth: np.ndarray) -> np.ndarray:
+    """(frames,) mean distance (mm) of the 13 :data:`JOINTS` at ``qs`` from ``truth`` (frames, 13, 3)."""
+    return np.array([np.linalg.norm(points(model, q, JOINTS) - t, axis=1).mean() for q, t in zip(qs, truth)]) * 1e3
+
+
+def flexion(p: np.ndarray) -> np.ndarray:
+    """(frames, 4) knee and elbow flexion (deg) of joint positions ``p`` (frames, 13, 3):
+    the angle between the bone above the joint and the one below (0 straight)."""
+    out = []
+    for j, above, below in FLEXION.values():
+        a, b = p[:, j] - p[:, above], p[:, below] - p[:, j]
+        cos = np.sum(a * b, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+        out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.array(out).T
+
+
+def summary(err: np.ndarray, flex_rmse: tuple[float, float]) -> str:
+    """One row's figures from the per-frame errors (mm) and the knees' and elbows' flexion RMSE (deg)."""
+    m = min(30, len(err))
+    return (f"mean {err.mean():6.1f} mm | median {np.median(err):6.1f} | p90 {np.percentile(err, 90):6.1f} | worst "
+            f"{err.max():6.1f} (frame {int(err.argmax()):3d}) | last/first 30 {err[-m:].mean() / err[:m].mean():5.2f} | "
+            f"flexion RMSE knees {flex_rmse[0]:5.1f} elbows {flex_rmse[1]:5.1f} deg")
+
+
+def track(seq: Sequence, cameras, masks, options: dict):
+    """Track ``masks`` from the floor's first pose; returns (configurations, frames/s, flags per frame)."""
+    tr = Tracker(seq.model, cameras, q0=seq.floor[0], **options)
+    t0 = time.perf_counter()
+    results = [tr.step(m, source=f"frame {k}") for k, m in enumerate(masks)]
+    fps = len(masks) / (time.perf_counter() - t0)
+    return np.array([r.q for r in results]), fps, [r.flags for r in results]
+
+
+def ecm_from_floor(seq: Sequence, cameras, masks, options: dict) -> np.ndarray:
+    """Each frame's ECM from its floor pose (:meth:`Tracker.refine`, the sizes measured on
+    the first frame at its floor pose)."""
+    tr = Tracker(seq.model, cameras, q0=seq.floor[0], **options)
+    tr.calibrate(masks[0])
+    return np.array([tr.refine(q, m, source=f"frame {k}")[0] for k, (q, m) in enumerate(zip(seq.floor, masks))])
+
+
+def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references: bool, options: dict,
+             preset: bool = True) -> dict:
+    """Track one case (with its preset unless not ``preset``: the tracker's defaults) and
+    print its rows; returns its figures."""
+    motion, n, factor, case_preset = CASES[name]
+    options = {**(case_preset if preset else {}), **options}
+    cameras = rig(seq.path, n, factor)
+    truth = np.array([points(seq.subject, q, JOINTS) for q in seq.q])
+    masks = rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
+    q, fps, flags = track(seq, cameras, masks, options)
+    err = joint_errors(seq.model, q, truth)
+    flex_true = flexion(truth)
+
+    def flex_rmse(qs) -> tuple[float, float]:  # the knees', the elbows' (FLEXION's order)
+        sq = (flexion(np.array([points(seq.model, x, JOINTS) for x in qs])) - flex_true) ** 2
+        return float(np.sqrt(sq[:, :2].mean())), float(np.sqrt(sq[:, 2:].mean()))
+
+    flagged = sum(1 for f in flags if f)
+    print(f"{name:16s} tracked        | {summary(err, flex_rmse(q))} | {fps:5.1f} fr/s | {flagged} frames flagged",
+          flush=True)
+    row = {"mean": err.mean(), "worst": err.max(), "flexion": flex_rmse(q), "fps": fps}
+    if references:
+        floor = joint_errors(seq.model, seq.floor, truth)
+        print(f"{name:16s} floor          | {summary(floor, flex_rmse(seq.floor))}", flush=True)
+        from_floor = ecm_from_floor(seq, cameras, masks, options)
+        e2 = joint_errors(seq.model, from_floor, truth)
+        print(f"{name:16s} ECM from floor | {summary(e2, flex_rmse(from_floor))}", flush=True)
+        own = rendered(seq.model, seq.floor, cameras, "ellipsoid", seed, cache)
+        q_own, fps_own, _ = track(seq, cameras, own, options)
+        e3 = joint_errors(seq.model, q_own, np.array([points(seq.model, x, JOINTS) for x in seq.floor]))
+        print(f"{name:16s} own renders    | {summary(e3, flex_rmse(q_own))} | {fps_own:5.1f} fr/s", flush=True)
+        print(f"{name:16s} ratios         | tracked / ECM from floor {err.mean() / e2.mean():.2f}x, tracked - floor "
+              f"{err.mean() - floor.mean():+.1f} mm, frames/s real / own renders {fps / fps_own:.2f}", flush=True)
+        row |= {"floor": floor.mean(), "from_floor": e2.mean(), "own": e3.mean(), "fps_ratio": fps / fps_own}
+    return row
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--bvh", type=Path, default=BVH, help="the motion capture (default: the shared CMU walk)")
+    p.add_argument("--only", help="comma-separated cases: " + ", ".join(CASES))
+    p.add_argument("--frames", type=int, help="track only the first N frames")
+    p.add_argument("--seed", type=int, default=0, help="the masks' noise seed")
+    p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a Tracker option for every case (repeatable)")
+    p.add_argument("--defaults", action="store_true",
+                   help="track with the tracker's defaults, not the cases' presets (PEOPLE, PEOPLE_ONE_CAMERA)")
+    p.add_argument("--no-references", dest="references", action="store_false",
+                   help="leave out the floor, ECM from the floor and the own renders")
+    p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kms2pin-realmotion",
+                   help="where rendered masks are kept between runs")
+    a = p.parse_args()
+    options = {}
+    for item in a.option:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in OPTION_GROUP:
+            p.error(f"--option wants NAME=VALUE with a Tracker option's name, not {item!r}")
+        try:
+            options[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            options[key.strip()] = value.strip()
+    names = a.only.split(",") if a.only else list(CASES)
+    bad = [n for n in names if n not in CASES]
+    if bad:
+        p.error(f"--only: no case {', '.join(bad)}; the cases are {', '.join(CASES)}")
+    sequences: dict[str, Sequence] = {}
+    rows = {}
+    for name in names:
+        motion = CASES[name][0]
+        if motion not in sequences:
+            sequences[motion] = load_sequence(a.bvh, motion, a.frames)
+        rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options, not a.defaults)
+    print("\ncase             |  mean |  worst | knees, elbows | frames/s" + (" | floor | ECM from floor | own renders | "
+                                                                      "fr/s real / own" if a.references else ""))
+    for name, r in rows.items():
+        print(f"{name:16s} | {r['mean']:5.1f} | {r['worst']:6.1f} | {r['flexion'][0]:5.1f}, {r['flexion'][1]:5.1f} deg | {r['fps']:8.1f}"
+              + (f" | {r['floor']:5.1f} | {r['from_floor']:14.1f} | {r['own']:11.1f} | {r['fps_ratio']:.2f}"
+                 if a.references else ""))
+    if len(rows) > 1:
+        print(f"median of {len(rows)} cases: mean error {np.median([r['mean'] for r in rows.values()]):.1f} mm, "
+              f"{np.median([r['fps'] for r in rows.values()]):.1f} frames/s")
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,291 @@
+"""The reach search: a limb left over the background is pointed back at the masks.
+
+A limb that the motion outran (an arm raised faster than one frame's ECM follows) ends
+the frame over the background, or hidden in the trunk's silhouette while its image is
+left unexplained, and ECM, whose pull reaches only a few pixels past a body's outline,
+does not bring it back.  Such a body is *lost*: in some camera less than
+:data:`COVERED` of its silhouette (at least :data:`MIN_PIXELS` pixels) falls on the
+mask; and a limb is *missed* when a camera's mask has a blob the model does not cover
+(after a 3x3 opening, at least :data:`BLOB` of that camera's foreground) within the
+limb's reach of its joint.  The topmost lost body of each chain, and each missed limb
+(a body on a spherical joint with one movable joint below it: an upper arm, a thigh),
+is re-aimed, its own joint first (with the joint below kept, and put back at rest: a
+limb unbent), then its child's (the one movable joint below it): a spherical joint
+turned so that its body's bone (from the joint to the body's centre) points along each
+of :data:`DIRECTIONS` directions spread over the sphere, the rest of its rotation kept;
+a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  Each choice is
+scored by the silhouette fit (IoU) with the rest of the body held, rendering only the
+moved bodies anew (a coarse score: a trial 20 degrees off a thin limb scores as one far
+off); the :data:`REFINED` best are screened by a few ECM iterations on the masks
+binned 2x2 (as the limb search's), the :data:`FINAL` best of those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN` both the frame's and that of the
+frame's pose run on by the same ECM (more iterations gain a little by themselves).  A body
+whose search found nothing rests for :data:`REST_FRAMES` frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pinocchio as pin
+
+from ..robot import JointCoordinates, Robot
+from .limbsearch import SCREEN_ITERATIONS, LimbMove
+from .loop import FrameECM
+from .masks import Views
+from .silhouette import body_coverage, model_silhouette
+
+__all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
+
+#: a body with less of its silhouette on the mask than this, in some camera, is lost
+COVERED = 0.5
+#: the fewest silhouette pixels a body must have in a camera to be judged there
+MIN_PIXELS = 12
+#: an unexplained blob this share of a camera's foreground pixels calls for a missed limb
+BLOB = 0.02
+#: the directions a spherical joint's bone is pointed along
+DIRECTIONS = 40
+#: the spacing of a revolute joint's trial angles (degrees)
+STEP_DEG = 20.0
+#: the IoU a re-aimed limb must gain to be kept: more than the limb search's, since a
+#: frame's ECM run again from anywhere near gains a little by itself
+GAIN = 0.01
+#: a body whose search found nothing is not searched again for this many frames
+REST_FRAMES = 2
+#: how many of the best-scoring trials are screened by ECM on binned masks, and how many
+#: of those refined at full resolution
+REFINED = 6
+FINAL = 2
+
+
+def sphere_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), z, r * np.sin(phi)])
+
+
+@dataclass(frozen=True)
+class _Reach:
+    """A body that can be re-aimed: its index, joint, the bodies that move with it, the
+    one movable joint below it (None if it has none or several) and the reach of the
+    moved bodies from the joint at rest (m)."""
+
+    body: int
+    joint: JointCoordinates
+    moved: tuple[int, ...]
+    child: JointCoordinates | None
+    child_body: int | None
+    span: float
+
+
+class ReachSearch:
+    """The reach search over ``robot``'s bodies on spherical or revolute joints, refining
+    with ``ecm`` (module docstring)."""
+
+    def __init__(self, robot: Robot, ecm: FrameECM):
+        self.robot, self.ecm = robot, ecm
+        m = robot.model
+        by_name = {j.name: j for j in robot.joints}
+        body_joint = {i: m.frames[f].parentJoint for i, f in enumerate(robot.frame_ids)}
+        self.reaches: dict[int, _Reach] = {}
+        for i, spec in enumerate(robot.system.joints):
+            j = by_name.get(spec.name)
+            if j is None or j.kind not in ("spherical", "revolute"):
+                continue
+            jid = m.getJointId(j.name)
+            below = set(m.subtrees[jid])
+            moved = tuple(b for b, k in body_joint.items() if k in below)
+            kids = [(by_name[c.name], robot.index(c.child)) for c in robot.system.joints
+                    if c.parent == spec.child and c.name in by_name and by_name[c.name].kind in ("spherical", "revolute")]
+            child, child_body = kids[0] if len(kids) == 1 else (None, None)
+            self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
+        self.directions = sphere_directions(DIRECTIONS)
+        self._searches = 0  # calls of search(): the frames
+        self._failed: dict[int, int] = {}  # body -> the search that last found nothing for it
+
+    def _span(self, jid: int, moved: tuple[int, ...]) -> float:
+        """How far the ``moved`` bodies reach from joint ``jid``'s point at rest (m)."""
+        poses = self.robot.body_poses(self.robot.q_rest)
+        origin = self.robot.data.oMi[jid].translation
+        inner = [self.robot.inner(self.robot.bodies[i]) for i in moved]
+        return max(float(np.linalg.norm(poses[i].translation - origin) + np.max(a)) for i, a in zip(moved, inner))
+
+    def _depth(self, i: int) -> int:
+        """How many joints lie between body ``i``'s joint and the root."""
+        m = self.robot.model
+        jid, depth = m.getJointId(self.reaches[i].joint.name), 0
+        while jid:
+            jid, depth = m.parents[jid], depth + 1
+        return depth
+
+    def missed(self, q: np.ndarray, views: Views) -> list[int]:
+        """The limbs (module docstring) within reach of a blob the model at ``q`` leaves
+        unexplained, the one whose joint is nearest a blob (in pixels) first."""
+        poses, Rs, ts = self.ecm.poses(q)
+        inner = self.ecm.sizes.inner
+        limbs = [i for i, r in self.reaches.items() if r.joint.kind == "spherical" and r.child is not None]
+        self.robot.forward(q)
+        data = self.robot.data
+        near: dict[int, float] = {}
+        for cam, mask in zip(views.cameras, views.masks):
+            left = (mask & ~model_silhouette(cam, poses, inner, (Rs, ts))).astype(np.uint8)
+            left = cv2.morphologyEx(left, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+            n, _, stats, centres = cv2.connectedComponentsWithStats(left)
+            big = [centres[k] for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= BLOB * np.count_nonzero(mask)]
+            for i in limbs if big else []:
+                r = self.reaches[i]
+                p = data.oMi[self.robot.model.getJointId(r.joint.name)].translation
+                depth = float(cam.depth(p[None])[0])
+                if depth <= 0:
+                    continue
+                d = min(float(np.linalg.norm(c - cam.project(p[None])[0])) for c in big)
+                if d <= r.span * cam.K[0, 0] / depth:
+                    near[i] = min(near.get(i, np.inf), d)
+        return sorted(near, key=near.get)
+
+    def lost(self, q: np.ndarray, views: Views) -> list[int]:
+        """The topmost lost bodies at ``q`` (module docstring): none of their ancestors lost."""
+        poses, Rs, ts = self.ecm.poses(q)
+        lost = set()
+        for cam, mask in zip(views.cameras, views.masks):
+            counts = body_coverage(cam, poses, self.ecm.sizes.inner, mask, (Rs, ts))
+            lost.update(i for i in self.reaches if counts[i, 0] >= MIN_PIXELS and counts[i, 1] < COVERED * counts[i, 0])
+        return [i for i in sorted(lost) if not any(i in self.reaches[k].moved and k != i for k in lost)]
+
+    def _aimed(self, q: np.ndarray, j: JointCoordinates, body: int) -> list[np.ndarray]:
+        """``q`` with joint ``j`` turned to each trial (module docstring), ``body`` its child body."""
+        if j.kind == "revolute":
+            lo, hi = self.robot.lower_limits[j.idx_q], self.robot.upper_limits[j.idx_q]
+            lo, hi = (lo, hi) if np.isfinite(lo) and np.isfinite(hi) else (-np.pi, np.pi)
+            out = []
+            for a in np.arange(lo, hi + 1e-9, np.radians(STEP_DEG)):
+                c = q.copy()
+                c[j.idx_q] = a
+                out.append(c)
+            return out
+        m, data = self.robot.model, self.robot.data
+        jid = m.getJointId(j.name)
+        poses = self.robot.body_poses(q)
+        origin = data.oMi[jid]
+        bone = poses[body].translation - origin.translation
+        norm = float(np.linalg.norm(bone))
+        if norm < 1e-9:
+            return []
+        x = q[j.idx_q : j.idx_q + 4]
+        R = pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+        A = origin.rotation @ R.T  # the joint's frame at zero rotation, world
+        out = []
+        for t in self.directions:
+            turn = pin.Quaternion.FromTwoVectors(bone / norm, t).toRotationMatrix()
+            c = q.copy()
+            c[j.idx_q : j.idx_q + 4] = pin.Quaternion(A.T @ turn @ A @ R).normalized().coeffs()
+            out.append(c)
+        return out
+
+    def _held(self, q: np.ndarray, moved: tuple[int, ...], views: Views) -> list[tuple]:
+        """Per camera, the silhouette of the bodies but ``moved`` at ``q`` against the mask:
+        its intersection and union counts, and the mask pixels it leaves (foreground and
+        background) that the moved bodies may add."""
+        inner = self.ecm.sizes.inner
+        poses, Rs, ts = self.ecm.poses(q)
+        held = [i for i in range(len(poses)) if i not in moved]
+        out = []
+        for cam, mask in zip(views.cameras, views.masks):
+            s = model_silhouette(cam, [poses[i] for i in held], inner[held], (Rs[held], ts[held]))
+            out.append((np.count_nonzero(s & mask), np.count_nonzero(s | mask), mask & ~s, ~mask & ~s))
+        return out
+
+    def _ranked(self, trials: list[np.ndarray], moved: tuple[int, ...], views: Views, held: list[tuple],
+                keep: int) -> list[np.ndarray]:
+        """The ``keep`` configurations of ``trials`` that fit best (IoU), best first (ties:
+        the earlier), the bodies but ``moved`` as in ``held`` (:meth:`_held`)."""
+        inner = self.ecm.sizes.inner
+        idx = list(moved)
+        scored = []
+        for k, c in enumerate(trials):
+            P = self.robot.body_poses(c)
+            arrays = (np.array([P[i].rotation for i in idx]), np.array([P[i].translation for i in idx]))
+            inter = union = 0
+            for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
+                sil = model_silhouette(cam, [P[i] for i in idx], inner[idx], arrays)
+                inter += i0 + np.count_nonzero(sil & fg)
+                union += u0 + np.count_nonzero(sil & bg)
+            scored.append((-(inter / union if union else 1.0), k, c))
+        return [c for *_, c in sorted(scored, key=lambda x: x[:2])[:keep]]
+
+    def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
+        """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (module docstring;
+        ``q`` itself among them if it scores so)."""
+        trials = self._aimed(q, r.joint, r.body)
+        if r.child is not None:  # each direction also with the joint below at rest (a limb unbent)
+            sl = slice(r.child.idx_q, r.child.idx_q + r.child.nq)
+            for c in list(trials):
+                c = c.copy()
+                c[sl] = self.robot.q_rest[sl]
+                trials.append(c)
+        held = self._held(q, r.moved, views)
+        starts = self._ranked([q, *trials], r.moved, views, held, REFINED)
+        if r.child is None:
+            return starts
+        return [self._ranked([c, *self._aimed(c, r.child, r.child_body)], r.moved, views, held, 1)[0] for c in starts]
+
+    def _refined(self, q: np.ndarray, fit: float, starts: list[np.ndarray], views: Views, binned: Views | None,
+                 coarse: Views | None, timings: dict, base: tuple | None) -> tuple[tuple, tuple | None]:
+        """The best of ``starts`` after screening and refinement (module docstring) as
+        (configuration, fit) if it gains :data:`GAIN`, else (``q``, ``fit``); and ``base``,
+        ``q`` run on by the frame's ECM (made when first needed)."""
+        best = (q, fit)
+        screened = []
+        for k, c in enumerate(starts):
+            if c is q:
+                continue
+            c = self.robot.clamp(c)
+            if binned is not None:
+                c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
+            screened.append((-self.ecm.fit(c, views), k, c))
+        for *_, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
+            qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
+            fc = self.ecm.fit(qc, views)
+            if fc > fit + GAIN and base is None:  # the fair comparison: q run on as long
+                qb, _, _ = self.ecm.run(q, views, timings, coarse=coarse)
+                base = (qb, self.ecm.fit(qb, views))
+            if fc > max(best[1], base[1] if base is not None else -1.0) + GAIN:
+                best = (qc, fc)
+        return best, base
+
+    def _todo(self, q: np.ndarray, views: Views, tried: set[int]) -> list[int]:
+        """The bodies to re-aim at ``q``: the topmost lost ones, then the missed limbs, none
+        of ``tried``."""
+        lost = self.lost(q, views)
+        return [i for i in lost + [k for k in self.missed(q, views) if k not in lost] if i not in tried]
+
+    def search(self, q: np.ndarray, fit: float, views: Views, binned: Views | None, coarse: Views | None,
+               timings: dict) -> tuple[np.ndarray, float, list[LimbMove]]:
+        """Re-aim every topmost lost body and missed limb of ``q`` (its ``fit``), each once,
+        looking again after each move kept (``binned``: the views binned 2x2 the trials are
+        screened on; ``coarse``: the frame's coarse views); returns the configuration, its
+        fit and the moves kept."""
+        self._searches += 1
+        moves: list[LimbMove] = []
+        tried = {i for i, k in self._failed.items() if self._searches - k <= REST_FRAMES}
+        base = None  # (q run on by ECM, its fit), once a trial looks like a gain
+        todo = self._todo(q, views, tried)
+        while todo:
+            i = todo.pop(0)
+            tried.add(i)
+            r = self.reaches[i]
+            (qc, fc), base = self._refined(q, fit, self._starts(q, r, views), views, binned, coarse, timings, base)
+            if qc is q:
+                self._failed[i] = self._searches
+                continue
+            joints = (r.joint,) if r.child is None else (r.joint, r.child)
+            iq = np.array([k for j in joints for k in range(j.idx_q, j.idx_q + j.nq)], dtype=int)
+            q, fit, base = qc, fc, None
+            moves.append(LimbMove("reach", (r.joint.name,), iq))
+            tried.update(k for k in self.reaches if i in self.reaches[k].moved)  # its chain's joints above
+            todo = self._todo(q, views, tried)
+        return q, fit, moves

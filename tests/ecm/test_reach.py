@@ -1,0 +1,83 @@
+"""The reach search: a lost or missed limb re-aimed at the masks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.loop import new_timings
+from kms2pin.ecm.masks import Views
+from kms2pin.ecm.reach import ReachSearch, sphere_directions
+from kms2pin.ecm.synth import render
+from kms2pin.ecm.tracker import Tracker
+from kms2pin.robot import load
+
+from ._tracking import DIR
+
+
+def test_the_trial_directions_cover_the_sphere_evenly():
+    d = sphere_directions(40)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    gaps = np.degrees(np.arccos(np.clip(d @ sphere_directions(2000).T, -1, 1))).min(axis=0)
+    assert gaps.max() < 25.0  # no direction of the sphere farther than 25 deg from a trial
+
+
+def _arm_scene(truth_up: bool):
+    """The human seen by two cameras with its left arm raised sideways (80 deg) or
+    hanging at rest; the start has the arm the other way."""
+    robot = load(DIR / "human.kms", root="free")
+    up = robot.with_coordinates(robot.q_rest, {"leftUpperArm_shoulder_z": 80.0})
+    qt, q0 = (up, robot.q_rest.copy()) if truth_up else (robot.q_rest.copy(), up)
+    centre = robot.body_pose(qt, "torso").translation
+    cams = [Camera.look_at(centre + [0.5, 0.2, 4.5], centre, width=640, height=480),
+            Camera.look_at(centre + [-1.5, 3.5, 2.5], centre, width=640, height=480)]
+    return robot, qt, q0, cams, render(robot, qt, cams)
+
+
+def _arm_error_cm(robot, q, qt) -> float:
+    """The largest centre error of the left arm's bodies (cm): the arm's twist about its
+    own axis, which a nearly straight elbow hardly shows, is left out."""
+    return max(100 * float(np.linalg.norm(robot.body_pose(q, b).translation - robot.body_pose(qt, b).translation))
+               for b in ("leftUpperArm", "leftForeArm", "leftHand"))
+
+
+@pytest.mark.parametrize("truth_up", [True, False])
+def test_an_arm_ecm_leaves_on_the_wrong_side_is_re_aimed_at_the_masks(truth_up):
+    """An arm started hanging by the trunk while the masks show it raised, or raised
+    while they show it hanging: ECM alone stays far off (lying over the background, or
+    leaving the arm's image unexplained), and the reach search brings the arm back."""
+    robot, qt, q0, cams, masks = _arm_scene(truth_up)
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False)
+    q_ecm, fit_ecm = tr.refine(q0, masks)
+    assert _arm_error_cm(robot, q_ecm, qt) > 40.0  # a local minimum of ECM
+    reach = ReachSearch(robot, tr.ecm)
+    views = Views.of(cams, masks)
+    arm = robot.index("leftUpperArm")
+    assert arm in reach.lost(q_ecm, views) + reach.missed(q_ecm, views)
+    q, fit, moves = reach.search(q_ecm, fit_ecm, views, views.binned({c: c.binned(2) for c in cams}), None, new_timings())
+    assert moves[0].flag() == "pointed 'leftUpperArm_shoulder' at the masks"
+    assert fit > fit_ecm + 0.05
+    off = {b: np.linalg.norm(robot.body_pose(q, b).translation - robot.body_pose(qt, b).translation)
+           for b in robot.bodies}
+    assert off["leftUpperArm"] < 0.02 and off["leftForeArm"] < 0.02  # from 40-90 cm
+    assert max(off.values()) < 0.08  # the hand's turn about the nearly straight arm is seen least
+
+
+def test_a_pose_that_fits_has_nothing_lost_or_missed():
+    robot, qt, _, cams, masks = _arm_scene(True)
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False)
+    reach = ReachSearch(robot, tr.ecm)
+    views = Views.of(cams, masks)
+    assert reach.lost(qt, views) == [] and reach.missed(qt, views) == []
+    q, fit, moves = reach.search(qt, tr.fit(qt, masks), views, None, None, new_timings())
+    assert moves == [] and np.array_equal(q, qt)
+
+
+def test_the_reach_search_is_an_option_of_the_tracker_and_flags_its_moves():
+    robot, qt, q0, cams, masks = _arm_scene(True)
+    assert Tracker(robot, cams).reach is None
+    tr = Tracker(robot, cams, q0=q0, calibrate_sizes=False, reach_search=True, prediction="previous")
+    res = tr.step(masks)
+    assert any(f.startswith("pointed '") and f.endswith("' at the masks") for f in res.flags)
+    assert _arm_error_cm(robot, res.q, qt) < 2.0
