@@ -325,6 +325,7 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
     ``what`` and ``order`` (2: the curvature too, so that the caller's next
     ``system_at(q, 2, order)`` at the result costs nothing)."""
     held = held.copy()
+    any_held = bool(held.any())
     limited = np.isfinite(lower)
     limits = bool(limited.any())
     clipped = limited
@@ -333,7 +334,7 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
     for _ in range(max_iter):
         if err <= tol:
             break
-        if held.any():
+        if any_held:
             J = J.copy()
             J[:, held] = 0.0
         dq = least_norm(J, r)
@@ -354,6 +355,7 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
         q, r, J, err = q_new, r_new, J_new, err_new
         if limits and clipped.any():
             held[_q_to_v(model, np.flatnonzero(clipped))] = True
+            any_held = bool(held.any())
     return q, r
 
 

@@ -413,9 +413,10 @@ def _closed_system(robot: Robot, s: _Structure, q: np.ndarray, grad: np.ndarray,
             at = iv[low | high]
             mu = _reduce(np.vstack([Jc, np.eye(nv)[at]]), grad, H, curvature)[4][len(Jc):]
             held[at[np.where(low[low | high], mu < 0, mu > 0)]] = True
-    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if held.any() else Jc, grad, H,
+    any_held = bool(held.any())
+    k, N, Hr, gr, _ = _reduce(np.vstack([Jc, np.eye(nv)[held]]) if any_held else Jc, grad, H,
                               curvature if newton else curvature[:0])
-    if held.any():
+    if any_held:
         Jc = Jc.copy()  # system_at's cache is not to be changed
         Jc[:, held] = 0.0
 
