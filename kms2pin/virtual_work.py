@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -56,8 +57,14 @@ class StaticUpdateResult:
     iterations: int
     residual: float
     energy: float
-    forces: np.ndarray
     message: str = ""
+    _force_terms: tuple = field(default=(), repr=False, compare=False)  # (evaluator, X, diff): forces on demand
+
+    @cached_property
+    def forces(self) -> np.ndarray:
+        """(n_bodies, 7) spring forces F_i (eq. 2.33) at ``q``, body order (computed when first asked)."""
+        ev, X, diff = self._force_terms
+        return ev.forces(X, diff)
 
 
 def target_array(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -337,7 +344,7 @@ def static_update(
     # input (a joint with limits stays where they put it)
     rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
-    return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, ev.forces(X, diff), message)
+    return StaticUpdateResult(q, converged, it, math.sqrt(gsq), energy, message, (ev, X, diff))
 
 
 def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_iter: int,
@@ -375,7 +382,7 @@ def _closed_static_update(robot: Robot, q_in: np.ndarray, ev: _Evaluator, max_it
         system = _closed_system(robot, ev.s, q, lin[1], lin[2])
     rev = ev.s.unlimited_revolute_q
     q[rev] -= 2.0 * np.pi * np.round((q[rev] - q_in[rev]) / (2.0 * np.pi))
-    return StaticUpdateResult(q, converged, it, math.sqrt(system[4]), lin[0], ev.forces(lin[3], lin[4]), message)
+    return StaticUpdateResult(q, converged, it, math.sqrt(system[4]), lin[0], message, (ev, lin[3], lin[4]))
 
 
 def _closed_step(robot: Robot, q: np.ndarray, dq: np.ndarray, held: np.ndarray, limited: bool) -> np.ndarray | None:
