@@ -120,8 +120,8 @@ class IterationOptions(_Group):
                              "from the share of it that a motion model learnt on the past frames carries on "
                              "('learnt'), or from the last pose", choices=("constant_velocity", "learnt", "previous"),
                              cli=Cli("--prediction", "HOW"))
-    prediction_memory: float = option(10.0, "frames the learnt motion model remembers (their weight falls by "
-                                            "1 - 1/memory a frame)", range=Range(1.0, open_lo=True))
+    prediction_memory: float = option(10.0, "frames the learnt motion model remembers (their weight is multiplied "
+                                            "by 1 - 1/memory a frame)", range=Range(1.0, open_lo=True))
     max_prediction_deg: float = option(20.0, "cap on each joint's predicted motion per frame (degrees; the root's "
                                              "translation as in tol_deg)", range=Range(0.0))
     delta_start: float = option(2.8, "edge width of the sharp silhouettes on a frame's first iteration (pixels), "
@@ -261,7 +261,8 @@ class LimbSearchOptions(_Group):
     limb_margin: float = option(0.005, "how far that hypothesis's running fit must lead to replace the pose",
                                 range=Range(0.0))
     reach_search: bool = option(False, "re-aim a limb whose body lies over the background in some camera, "
-                                       "pointing it at the masks (kms2pin.ecm.reach)", cli=Cli("--reach-search"))
+                                       "or next to a blob of the masks the model leaves unexplained, pointing "
+                                       "it at the masks (kms2pin.ecm.reach)", cli=Cli("--reach-search"))
 
 
 #: the groups of :class:`TrackerOptions`: attribute name -> class

@@ -104,6 +104,10 @@ class ReachSearch:
             child, child_body = kids[0] if len(kids) == 1 else (None, None)
             self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
         self.directions = sphere_directions(DIRECTIONS)
+        self.forget()
+
+    def forget(self) -> None:
+        """Start afresh (a restarted track): no body rests after a search that found nothing."""
         self._searches = 0  # calls of search(): the frames
         self._failed: dict[int, int] = {}  # body -> the search that last found nothing for it
 

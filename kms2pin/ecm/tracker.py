@@ -349,6 +349,8 @@ class Tracker:
         self._reset(q0, "restart pose")
         self.hypotheses.alts.clear()
         self.ecm.forget_motion()
+        if self.reach is not None:
+            self.reach.forget()
 
     def _reset(self, q0, what: str) -> None:
         q0 = np.array(q0, dtype=float)

@@ -40,7 +40,7 @@ class FrameResult:
             hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
             the limb search's ``"swung '<joint>' the other way"``, ``"put the joints
             below '<joint>' back at rest"`` and ``"swapped '<left joint>' and '<right
-            joint>'"``.
+            joint>'"``, and the reach search's ``"pointed '<joint>' at the masks"``.
         timings: seconds spent in the E-step, M-step and static update, and in the size
             refinement (``sizes``; :meth:`step` only).
     """
