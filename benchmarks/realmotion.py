@@ -157,7 +157,7 @@ def floor_poses(model: Robot, subject: Robot, q_subject: np.ndarray, q_start: np
         if gap > tol:
             raise SystemExit(f"frame {k}: the model's joints are {gap * 1e3:.3g} mm from the subject's at its own "
                              "angles; this benchmark's floor assumes a model that expresses the motion exactly")
-    return np.array(q_start, dtype=float)
+    return np.array([pin.normalize(model.model, np.array(q, dtype=float)) for q in q_start])  # unit quaternions
 
 
 def load_sequence(path: Path, motion: str, frames: int | None) -> Sequence:

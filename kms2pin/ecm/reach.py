@@ -34,7 +34,7 @@ from ..robot import JointCoordinates, Robot
 from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM
 from .masks import Views
-from .silhouette import body_coverage, model_silhouette
+from .silhouette import body_coverage, model_silhouette, silhouette_counts
 
 __all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
 
@@ -209,15 +209,18 @@ class ReachSearch:
         the earlier), the bodies but ``moved`` as in ``held`` (:meth:`_held`)."""
         inner = self.ecm.sizes.inner
         idx = list(moved)
+        frames = [self.robot.frame_ids[i] for i in idx]
+        oMf = self.robot.data.oMf
         scored = []
         for k, c in enumerate(trials):
-            P = self.robot.body_poses(c)
-            arrays = (np.array([P[i].rotation for i in idx]), np.array([P[i].translation for i in idx]))
+            self.robot.forward(c)  # the moved bodies' poses only
+            P = [pin.SE3(oMf[f]) for f in frames]
+            arrays = (np.array([M.rotation for M in P]), np.array([M.translation for M in P]))
             inter = union = 0
             for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
-                sil = model_silhouette(cam, [P[i] for i in idx], inner[idx], arrays)
-                inter += i0 + np.count_nonzero(sil & fg)
-                union += u0 + np.count_nonzero(sil & bg)
+                on_fg, on_bg = silhouette_counts(cam, P, inner[idx], fg, bg, arrays)
+                inter += i0 + on_fg
+                union += u0 + on_bg
             scored.append((-(inter / union if union else 1.0), k, c))
         return [c for *_, c in sorted(scored, key=lambda x: x[:2])[:keep]]
 

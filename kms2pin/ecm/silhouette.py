@@ -19,7 +19,7 @@ from .camera import Camera
 from .mstep import body_images, closest_approach, pose_arrays
 from .projection import body_bbox
 
-__all__ = ["PoseCache", "body_coverage", "model_silhouette", "silhouette_iou", "visible_bodies"]
+__all__ = ["PoseCache", "body_coverage", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
 
 
 class PoseCache:
@@ -52,6 +52,26 @@ def model_silhouette(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray
         a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
         model[img.slices] |= (a2 <= 1.0).reshape(img.shape)
     return model
+
+
+def silhouette_counts(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, on: np.ndarray,
+                      off: np.ndarray, arrays: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[int, int]:
+    """How many pixels of the bodies' silhouette (as :func:`model_silhouette`) fall where
+    ``on`` and where ``off`` (bool images) hold, counted within the bodies' image boxes
+    only."""
+    images = [(P, li, img) for P, li, img in
+              zip(poses, inner, body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays))
+              if img is not None]
+    if not images:
+        return 0, 0
+    v0, v1 = min(img.box.v0 for *_, img in images), max(img.box.v1 for *_, img in images)
+    u0, u1 = min(img.box.u0 for *_, img in images), max(img.box.u1 for *_, img in images)
+    sil = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+    for P, li, img in images:  # stride 1: every pixel of the box
+        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
+        b = img.box
+        sil[b.v0 - v0 : b.v1 - v0, b.u0 - u0 : b.u1 - u0] |= (a2 <= 1.0).reshape(img.shape)
+    return int(np.count_nonzero(sil & on[v0:v1, u0:u1])), int(np.count_nonzero(sil & off[v0:v1, u0:u1]))
 
 
 def body_coverage(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, mask: np.ndarray,

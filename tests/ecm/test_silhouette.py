@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.initialization import coarse_search, scaled_camera
 from kms2pin.ecm.raycast import render_mask
-from kms2pin.ecm.silhouette import body_coverage, model_silhouette, silhouette_iou
+from kms2pin.ecm.silhouette import body_coverage, model_silhouette, silhouette_counts, silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
@@ -65,3 +66,20 @@ def test_each_body_s_coverage_counts_its_own_silhouette_and_the_mask_under_it():
         n, on = int(own.sum()), int((own & mask).sum())
         assert abs(counts[i, 0] - n) <= max(2, 0.01 * n) and abs(counts[i, 1] - on) <= max(2, 0.01 * n)
     assert counts[:, 0].min() > 50
+
+
+def test_silhouette_counts_in_the_boxes_equal_those_over_the_whole_image():
+    robot = _robot("lowerbody")
+    cam = Camera.default()
+    poses = robot.body_poses(robot.q_rest)
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    rng = np.random.default_rng(2)
+    on = rng.random(cam.shape) < 0.5
+    off = ~on & (rng.random(cam.shape) < 0.5)
+    for idx in ([0], [1, 2], list(range(len(poses)))):
+        sil = model_silhouette(cam, [poses[i] for i in idx], inner[idx])
+        expected = (int((sil & on).sum()), int((sil & off).sum()))
+        assert silhouette_counts(cam, [poses[i] for i in idx], inner[idx], on, off) == expected
+        assert expected[0] > 20
+    away = pin.SE3(np.eye(3), np.array([0.0, 0.0, -100.0]))  # out of view: no pixel
+    assert silhouette_counts(cam, [away], inner[:1], on, off) == (0, 0)
