@@ -53,11 +53,14 @@ def test_the_initialization_scores_candidates_with_the_trackers_fit():
     assert cands[0][0] > 0.97 > cands[-1][0]
 
 
-def test_each_body_s_coverage_counts_its_own_silhouette_and_the_mask_under_it():
+def _lower_body_at_rest():
+    """The default camera and the lower body's poses and inner semi-axes at rest."""
     robot = _robot("lowerbody")
-    cam = Camera.default()
-    poses = robot.body_poses(robot.q_rest)
-    inner = np.array([robot.inner(b) for b in robot.bodies])
+    return Camera.default(), robot.body_poses(robot.q_rest), np.array([robot.inner(b) for b in robot.bodies])
+
+
+def test_each_body_s_coverage_counts_its_own_silhouette_and_the_mask_under_it():
+    cam, poses, inner = _lower_body_at_rest()
     rng = np.random.default_rng(1)
     mask = rng.random(cam.shape) < 0.5
     counts = body_coverage(cam, poses, inner, mask)
@@ -69,10 +72,7 @@ def test_each_body_s_coverage_counts_its_own_silhouette_and_the_mask_under_it():
 
 
 def test_silhouette_counts_in_the_boxes_equal_those_over_the_whole_image():
-    robot = _robot("lowerbody")
-    cam = Camera.default()
-    poses = robot.body_poses(robot.q_rest)
-    inner = np.array([robot.inner(b) for b in robot.bodies])
+    cam, poses, inner = _lower_body_at_rest()
     rng = np.random.default_rng(2)
     on = rng.random(cam.shape) < 0.5
     off = ~on & (rng.random(cam.shape) < 0.5)
