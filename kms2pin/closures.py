@@ -55,13 +55,12 @@ _NONE, _NONE3 = np.empty((0, 0)), np.empty((0, 0, 0))  # outputs the kernel is n
 
 @dataclass(frozen=True)
 class _Closure:
-    """One closure: its joint, rows, the (parent joint, placement) of its two ends, their
-    frame ids, and Pinocchio's constraint model where one fits."""
+    """One closure: its joint, rows, the (parent joint, placement) of its two ends, and
+    Pinocchio's constraint model where one fits."""
 
     joint: Joint
     rows: slice
     ends: tuple[tuple[int, pin.SE3], tuple[int, pin.SE3]]
-    frames: tuple[int, int]
     constraint: pin.RigidConstraintModel | None
 
 
@@ -113,7 +112,7 @@ class Closures:
         items, start = [], 0
         for j in self.joints:
             R_align = alignment_matrix(np.asarray(j.parent_bvec.orient), np.asarray(j.child_bvec.orient))
-            ends, fids = [], []
+            ends = []
             for side, body, bvec, R in (("parent", j.parent, j.parent_bvec, np.eye(3)),
                                         ("child", j.child, j.child_bvec, R_align.T)):
                 pos = np.asarray(bvec.pos, dtype=float)
@@ -121,8 +120,7 @@ class Closures:
                 f = model.frames[link]
                 placement = f.placement * pin.SE3(R, pos if body is None else pos + centres[body])
                 ends.append((f.parentJoint, placement))
-                fids.append(model.addFrame(pin.Frame(f"{j.name}_{side}", f.parentJoint, link, placement,
-                                                     pin.FrameType.OP_FRAME)))
+                model.addFrame(pin.Frame(f"{j.name}_{side}", f.parentJoint, link, placement, pin.FrameType.OP_FRAME))
             constraint = None
             if j.kind in ("spherical", "fixed"):
                 kind, frame = ((pin.ContactType.CONTACT_3D, _LWA) if j.kind == "spherical"
@@ -131,7 +129,7 @@ class Closures:
                 constraint.name = j.name
             rows = slice(start, start + ROWS[j.kind])
             start = rows.stop
-            items.append(_Closure(j, rows, (ends[0], ends[1]), (fids[0], fids[1]), constraint))
+            items.append(_Closure(j, rows, (ends[0], ends[1]), constraint))
         self._items = tuple(items)
         self.rows = start
         self._starts = np.array([c.rows.start for c in items], dtype=int)
@@ -153,19 +151,11 @@ class Closures:
         self._end = np.array([[float(t[2][1]), float(t[3][1])] for t in terms]).reshape(-1, 2)
         self._vec = np.array([[*t[2][2], *t[3][2]] for t in terms], dtype=float).reshape(-1, 6)
         self._pinocchio = [c for c in items if c.constraint is not None]
-        self._models = pin.StdVec_RigidConstraintModel()
-        for c in self._pinocchio:
-            self._models.append(c.constraint)
-        self._fixed = [(k, c) for k, c in enumerate(self._pinocchio) if c.joint.kind == "fixed"]
-        self.has_fixed = bool(self._fixed)
+        self._fixed = [c for c in self._pinocchio if c.joint.kind == "fixed"]
         self._last = None  # system_at's last (q, what, order, result)
 
     def __len__(self) -> int:
         return len(self._items)
-
-    def frame_ids(self) -> list[tuple[int, int]]:
-        """The (parent, child) frame ids of each closure, in :attr:`joints` order."""
-        return [c.frames for c in self._items]
 
     def ends(self, data: pin.Data) -> np.ndarray:
         """(2 K, 7) world placements (XYZQUAT) of every closure's two ends (parent, child, ...)
@@ -201,7 +191,7 @@ class Closures:
         kernels.closure_terms(data.J, self.ends(data), self._moving, self._kind, self._end, self._vec, self._row,
                               self._coef, _NONE if order is None else order, r, Jc, H, what)
         if self._fixed:
-            self._pinocchio_rows(model, data, r, Jc if what >= 1 else None, [c for _, c in self._fixed])
+            self._pinocchio_rows(model, data, r, Jc if what >= 1 else None, self._fixed)
         return r, (Jc if what >= 1 else None), (H if what >= 2 else None)
 
     def system_at(self, model: pin.Model, data: pin.Data, q: np.ndarray, what: int = 1,

@@ -31,6 +31,7 @@ from .urdf import (
     centre_offset,
     check_root_joint_name,
     rest_values,
+    root_joint_clash,
     spherical_parts,
     to_srdf,
     to_urdf,
@@ -71,7 +72,7 @@ class JointCoordinates:
     spec: Joint | None
 
 
-def _quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
+def quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
     """The rotation of a Pinocchio quaternion (x, y, z, w), normalized."""
     x = np.asarray(xyzw, dtype=float)
     return pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
@@ -89,13 +90,14 @@ def check_free_root(system: System, spec: ModelSpec | None = None) -> None:
             f"'{system.name}' has {len(anchored)} such joints ({', '.join(anchored)}); "
             "use root='spec' or keep one"
         )
-    if spec is not None:
-        for j in system.joints:
-            if j.name == ROOT_JOINT and j.parent is not None:
-                raise SpecError([spec.diagnostic(j.loc, (
-                    f"this joint of '{system.name}' is called '{ROOT_JOINT}' (body '{j.child}'), the name a free "
-                    "root's joint takes; rename the body or its bound vector, or keep the spec's root"))])
-    check_root_joint_name(system)
+    if spec is None:
+        check_root_joint_name(system)
+        return
+    j = root_joint_clash(system)
+    if j is not None:
+        raise SpecError([spec.diagnostic(j.loc, (
+            f"this joint of '{system.name}' is called '{ROOT_JOINT}' (body '{j.child}'), the name a free "
+            "root's joint takes; rename the body or its bound vector, or keep the spec's root"))])
 
 
 def mesh_package_dir() -> str:
@@ -318,7 +320,7 @@ class Robot:
             if j.kind == "free":
                 out[ROOT_JOINT] = block.copy()
             elif j.kind == "spherical":
-                out.update(zip(spherical_parts(j.name)[0], (float(a) for a in xyz_angles(_quaternion_matrix(block)))))
+                out.update(zip(spherical_parts(j.name)[0], (float(a) for a in xyz_angles(quaternion_matrix(block)))))
             elif j.kind == "revolute":
                 out[j.name] = float(block[0]) if j.spec.limits is not None else wrap_angle(float(block[0]))
             elif j.nq:
@@ -338,7 +340,7 @@ class Robot:
         for j in self.joints:
             block = rows[:, j.idx_q : j.idx_q + j.nq]
             if j.kind == "spherical":
-                out[:, c : c + 3] = np.reshape([np.degrees(xyz_angles(_quaternion_matrix(x))) for x in block], (-1, 3))
+                out[:, c : c + 3] = np.reshape([np.degrees(xyz_angles(quaternion_matrix(x))) for x in block], (-1, 3))
             elif j.kind == "revolute":
                 out[:, c] = np.degrees(block[:, 0])
             else:
@@ -378,7 +380,7 @@ class Robot:
             j, k = where[name]
             if j.kind == "spherical":
                 if j not in spherical:
-                    spherical[j] = np.degrees(xyz_angles(_quaternion_matrix(q[j.idx_q : j.idx_q + 4])))
+                    spherical[j] = np.degrees(xyz_angles(quaternion_matrix(q[j.idx_q : j.idx_q + 4])))
                 spherical[j][k] = value
             else:
                 q[j.idx_q + k] = math.radians(value) if j.kind == "revolute" else value
@@ -547,7 +549,7 @@ class Robot:
             elif j.kind == "spherical":
                 axis = rng.normal(size=3)
                 turn = axis / np.linalg.norm(axis) * math.radians(rng.uniform(0.0, spread_deg))
-                R = pin.exp3(turn) @ _quaternion_matrix(q[j.idx_q : j.idx_q + 4])
+                R = pin.exp3(turn) @ quaternion_matrix(q[j.idx_q : j.idx_q + 4])
                 q[j.idx_q : j.idx_q + 4] = pin.Quaternion(R).coeffs()
             elif j.kind == "prismatic" and np.isfinite(self.lower_limits[j.idx_q]):
                 value = rng.uniform(self.lower_limits[j.idx_q], self.upper_limits[j.idx_q])

@@ -118,14 +118,20 @@ def ellipsoid_mass(semi_axes: Sequence[float]) -> tuple[float, np.ndarray]:
     return m, m / 5.0 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
 
 
+def root_joint_clash(system: System) -> Joint | None:
+    """The joint of ``system`` (not the one to the inertial frame) already called
+    :data:`ROOT_JOINT`, a free root's name, or None."""
+    return next((j for j in system.joints if j.name == ROOT_JOINT and j.parent is not None), None)
+
+
 def check_root_joint_name(system: System) -> None:
     """ExportError if a joint of ``system`` is already called :data:`ROOT_JOINT` (a free root's name)."""
-    for j in system.joints:
-        if j.name == ROOT_JOINT and j.parent is not None:
-            raise ExportError(
-                f"'{system.name}' has a joint called '{ROOT_JOINT}' (body '{j.child}'), the name a free root's "
-                "joint takes; rename the body or its bound vector, or keep the spec's root"
-            )
+    j = root_joint_clash(system)
+    if j is not None:
+        raise ExportError(
+            f"'{system.name}' has a joint called '{ROOT_JOINT}' (body '{j.child}'), the name a free root's "
+            "joint takes; rename the body or its bound vector, or keep the spec's root"
+        )
 
 
 def _material(name: str, rgba) -> str:

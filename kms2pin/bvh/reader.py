@@ -74,10 +74,6 @@ class BvhFile:
     frame_time: float
     motion: np.ndarray
 
-    @property
-    def fps(self) -> float:
-        return 1.0 / self.frame_time
-
     def channels(self, joint: BvhJoint) -> np.ndarray:
         """(frames, len(joint.channels)): the values of ``joint``'s channels."""
         return self.motion[:, joint.first : joint.first + len(joint.channels)]

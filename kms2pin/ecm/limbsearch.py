@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from ..robot import JointCoordinates, Robot
+from ..robot import JointCoordinates, Robot, quaternion_matrix
 from .limbs import left_right_pairs, limb_joints, movable, twin_name
 from .loop import FrameECM
 from .masks import Views
@@ -105,8 +105,7 @@ def _swing(q: np.ndarray, rest: np.ndarray, j: JointCoordinates) -> np.ndarray:
     if j.kind != "spherical":
         c[j.idx_q] = 2.0 * rest[j.idx_q] - q[j.idx_q]
         return c
-    R0, R = (pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
-             for x in (rest[j.idx_q : j.idx_q + 4], q[j.idx_q : j.idx_q + 4]))
+    R0, R = quaternion_matrix(rest[j.idx_q : j.idx_q + 4]), quaternion_matrix(q[j.idx_q : j.idx_q + 4])
     u = np.asarray(j.spec.parent_bvec.orient, dtype=float)
     u = u / np.linalg.norm(u)
     v = pin.log3(R @ R0.T)
@@ -169,8 +168,7 @@ class LimbSearch:
         joint's rotation about its parent end's axis (rad)."""
         if j.kind != "spherical":
             return float(q[j.idx_q])
-        x = q[j.idx_q : j.idx_q + 4]
-        R = pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
+        R = quaternion_matrix(q[j.idx_q : j.idx_q + 4])
         return float(pin.log3(R) @ np.asarray(j.spec.parent_bvec.orient, dtype=float))
 
     @staticmethod
@@ -179,8 +177,7 @@ class LimbSearch:
         joint's rotation about its parent end's axis (rad)."""
         if j.kind != "spherical":
             return abs(q[j.idx_q] - rest[j.idx_q])
-        R0, R = (pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
-                 for x in (rest[j.idx_q : j.idx_q + 4], q[j.idx_q : j.idx_q + 4]))
+        R0, R = quaternion_matrix(rest[j.idx_q : j.idx_q + 4]), quaternion_matrix(q[j.idx_q : j.idx_q + 4])
         u = np.asarray(j.spec.parent_bvec.orient, dtype=float)
         return abs(float(pin.log3(R @ R0.T) @ u)) / float(np.linalg.norm(u))
 

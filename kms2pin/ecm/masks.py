@@ -9,7 +9,7 @@ just other views.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -81,6 +81,8 @@ class Views:
 
     cameras: tuple[Camera, ...]
     masks: tuple[np.ndarray, ...]
+    #: :meth:`binned`'s result, made once per frame however many parts ask for it
+    _binned: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def of(cls, cameras: Sequence[Camera], masks: Sequence[np.ndarray]) -> Views:
@@ -97,6 +99,11 @@ class Views:
     def binned(self, binned_cameras: dict[Camera, Camera]) -> Views | None:
         """The masks binned 2x2 with their binned cameras (``binned_cameras``: camera ->
         :meth:`Camera.binned`), or None if a camera is too small to bin."""
-        if not all(c in binned_cameras for c in self.cameras):
-            return None
-        return Views(tuple(binned_cameras[c] for c in self.cameras), tuple(bin_mask(m) for m in self.masks))
+        cached = self._binned.get(id(binned_cameras))
+        if cached is not None and cached[0] is binned_cameras:
+            return cached[1]
+        out = None
+        if all(c in binned_cameras for c in self.cameras):
+            out = Views(tuple(binned_cameras[c] for c in self.cameras), tuple(bin_mask(m) for m in self.masks))
+        self._binned[id(binned_cameras)] = (binned_cameras, out)
+        return out

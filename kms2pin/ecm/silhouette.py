@@ -9,7 +9,7 @@ cameras.  Two empty sets agree: an empty union is a fit of 1.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -17,9 +17,9 @@ import pinocchio as pin
 from ..robot import Robot
 from .camera import Camera
 from .mstep import body_images, closest_approach, pose_arrays
-from .projection import body_bbox
+from .projection import BBox, body_bbox
 
-__all__ = ["PoseCache", "body_coverage", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
+__all__ = ["PoseCache", "body_coverage", "body_silhouettes", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
 
 
 class PoseCache:
@@ -40,17 +40,25 @@ class PoseCache:
         return self._last[1:]
 
 
+def body_silhouettes(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray,
+                     arrays: tuple[np.ndarray, np.ndarray] | None = None) -> Iterator[tuple[int, BBox, np.ndarray]]:
+    """Per body in view: (its index, its image box, the box's pixels (bool) whose centre's
+    ray meets its inner ellipsoid); bodies at ``poses``, semi-axes ``inner`` (n, 3);
+    ``arrays``: their :func:`pose_arrays`."""
+    images = body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays)
+    for i, (P, li, img) in enumerate(zip(poses, inner, images)):
+        if img is not None:  # stride 1: every pixel of the box
+            a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
+            yield i, img.box, (a2 <= 1.0).reshape(img.shape)
+
+
 def model_silhouette(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray,
                      arrays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(H, W) bool: the pixels of ``camera`` whose centre's ray meets an inner ellipsoid
-    (bodies at ``poses``, semi-axes ``inner`` (n, 3)); ``arrays``: their :func:`pose_arrays`."""
+    (:func:`body_silhouettes`)."""
     model = np.zeros(camera.shape, dtype=bool)
-    images = body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays)
-    for P, li, img in zip(poses, inner, images):
-        if img is None:
-            continue
-        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
-        model[img.slices] |= (a2 <= 1.0).reshape(img.shape)
+    for _, b, sil in body_silhouettes(camera, poses, inner, arrays):
+        model[b.v0 : b.v1, b.u0 : b.u1] |= sil
     return model
 
 
@@ -59,19 +67,15 @@ def silhouette_counts(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarra
     """How many pixels of the bodies' silhouette (as :func:`model_silhouette`) fall where
     ``on`` and where ``off`` (bool images) hold, counted within the bodies' image boxes
     only."""
-    images = [(P, li, img) for P, li, img in
-              zip(poses, inner, body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays))
-              if img is not None]
-    if not images:
+    parts = list(body_silhouettes(camera, poses, inner, arrays))
+    if not parts:
         return 0, 0
-    v0, v1 = min(img.box.v0 for *_, img in images), max(img.box.v1 for *_, img in images)
-    u0, u1 = min(img.box.u0 for *_, img in images), max(img.box.u1 for *_, img in images)
-    sil = np.zeros((v1 - v0, u1 - u0), dtype=bool)
-    for P, li, img in images:  # stride 1: every pixel of the box
-        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
-        b = img.box
-        sil[b.v0 - v0 : b.v1 - v0, b.u0 - u0 : b.u1 - u0] |= (a2 <= 1.0).reshape(img.shape)
-    return int(np.count_nonzero(sil & on[v0:v1, u0:u1])), int(np.count_nonzero(sil & off[v0:v1, u0:u1]))
+    v0, v1 = min(b.v0 for _, b, _ in parts), max(b.v1 for _, b, _ in parts)
+    u0, u1 = min(b.u0 for _, b, _ in parts), max(b.u1 for _, b, _ in parts)
+    union = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+    for _, b, sil in parts:
+        union[b.v0 - v0 : b.v1 - v0, b.u0 - u0 : b.u1 - u0] |= sil
+    return int(np.count_nonzero(union & on[v0:v1, u0:u1])), int(np.count_nonzero(union & off[v0:v1, u0:u1]))
 
 
 def body_coverage(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, mask: np.ndarray,
@@ -79,13 +83,8 @@ def body_coverage(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, m
     """(n, 2) per body: the pixels of its own silhouette in ``camera`` (as in
     :func:`model_silhouette`) and how many of them ``mask`` (bool) holds."""
     out = np.zeros((len(poses), 2), dtype=int)
-    images = body_images(camera, poses, inner, 0.5, slack_px=0.0, max_pixels=10**9, arrays=arrays)
-    for i, (P, li, img) in enumerate(zip(poses, inner, images)):
-        if img is None:
-            continue
-        a2, _ = closest_approach(img, P.rotation, P.translation, li, False)
-        sil = (a2 <= 1.0).reshape(img.shape)
-        out[i] = np.count_nonzero(sil), np.count_nonzero(sil & mask[img.slices])
+    for i, b, sil in body_silhouettes(camera, poses, inner, arrays):
+        out[i] = np.count_nonzero(sil), np.count_nonzero(sil & mask[b.v0 : b.v1, b.u0 : b.u1])
     return out
 
 

@@ -24,15 +24,10 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from ..robot import JointCoordinates, Robot
+from ..robot import JointCoordinates, Robot, quaternion_matrix
 from .limbs import sagittal_mirror, twin_name
 
 __all__ = ["Symmetry", "spherical_angle"]
-
-
-def _rotation(block: np.ndarray) -> np.ndarray:
-    """The rotation of a Pinocchio quaternion (x, y, z, w)."""
-    return pin.Quaternion(block[3], block[0], block[1], block[2]).normalized().toRotationMatrix()
 
 
 def _coeffs(R: np.ndarray) -> np.ndarray:
@@ -41,7 +36,7 @@ def _coeffs(R: np.ndarray) -> np.ndarray:
 
 def spherical_angle(a: np.ndarray, b: np.ndarray) -> float:
     """The angle (rad) between two spherical joints' quaternions (x, y, z, w)."""
-    return float(np.linalg.norm(pin.log3(_rotation(a).T @ _rotation(b))))
+    return float(np.linalg.norm(pin.log3(quaternion_matrix(a).T @ quaternion_matrix(b))))
 
 
 class Symmetry:
@@ -58,7 +53,7 @@ class Symmetry:
             if t is not None and t.kind == j.kind and low != twin_name(low):
                 self.twin[j.name] = t
         self._frame = {j.name: self._parent_axes(j) for j in robot.joints if j.kind == "spherical"}
-        self._rest = {j.name: _rotation(robot.q_rest[j.idx_q : j.idx_q + 4]) for j in robot.joints
+        self._rest = {j.name: quaternion_matrix(robot.q_rest[j.idx_q : j.idx_q + 4]) for j in robot.joints
                       if j.kind == "spherical"}
 
     @classmethod
@@ -82,7 +77,7 @@ class Symmetry:
         if j.kind != "spherical":
             return q[j.idx_q : j.idx_q + 1]
         T = self._frame[onto.name].T @ self.S @ self._frame[j.name]
-        delta = _rotation(q[j.idx_q : j.idx_q + 4]) @ self._rest[j.name].T
+        delta = quaternion_matrix(q[j.idx_q : j.idx_q + 4]) @ self._rest[j.name].T
         return _coeffs(T @ delta @ T.T @ self._rest[onto.name])
 
     def exchange(self, q: np.ndarray, left: Sequence[JointCoordinates], right: Sequence[JointCoordinates]) -> np.ndarray:
