@@ -48,7 +48,6 @@ from kms2pin import native, reference
 from kms2pin.virtual_work import (
     _closed_system,
     _Evaluator,
-    _hold_active,
     perturbed_targets,
     static_update,
     stiffness_array,
@@ -72,8 +71,14 @@ def gradient_norm(robot, q, targets) -> float:
         _, grad, H, _ = ev.linearize(q)
         return float(np.sqrt(_closed_system(robot, ev.s, q, grad, H)[4]))
     _, grad, H, _ = ev.linearize(q, hessian=False)
-    if ev.s.limits is not None:
-        grad = _hold_active(ev.s.limits, q, grad, H)[0]
+    for j in robot.joints:  # a limited joint at a limit, pushed outwards, holds its part
+        i = j.idx_q
+        if j.nq == 1 and np.isfinite(robot.lower_limits[i]):
+            span = robot.upper_limits[i] - robot.lower_limits[i]
+            low = q[i] <= robot.lower_limits[i] + 1e-12 * span and grad[j.idx_v] > 0
+            high = q[i] >= robot.upper_limits[i] - 1e-12 * span and grad[j.idx_v] < 0
+            if low or high:
+                grad[j.idx_v] = 0.0
     return float(np.linalg.norm(grad))
 
 

@@ -107,18 +107,26 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
     }
     double *grad = (double *)G.view.buf;
     Py_ssize_t gs = G.view.strides[0] / 8;
+    char *hb = (char *)H.view.buf;
+    Py_ssize_t h0 = H.view.strides[0], h1 = H.view.strides[1];
+#define HH(r, c) (*(double *)(hb + (r) * h0 + (c) * h1))
     for (Py_ssize_t a = 0; a < nv; a++) {
         grad[a * gs] = 0.0;
-        for (Py_ssize_t c = 0; c < nv; c++) AT(H, a, c) = 0.0;
+        for (Py_ssize_t c = 0; c < nv; c++) HH(a, c) = 0.0;
     }
-    /* per-body columns of B (7 x nv) and, for the second-order term, omega and Y */
-    double *B = (double *)PyMem_Malloc(sizeof(double) * (size_t)(7 * nv + 3 * nv + 3 * nv + 1));
-    if (B == NULL) {
+    /* per-body columns of B (7 x nv), k-weighted B, omega and Y (the second-order term),
+     * and the columns that move the body (S != 0) */
+    double *B = (double *)PyMem_Malloc(sizeof(double) * (size_t)(7 * nv + 7 * nv + 3 * nv + 3 * nv + 1));
+    Py_ssize_t *cols = (Py_ssize_t *)PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(nv + 1));
+    if (B == NULL || cols == NULL) {
+        PyMem_Free(B);
+        PyMem_Free(cols);
         release(b, 9);
         return PyErr_NoMemory();
     }
-    double *W = B + 7 * nv; /* omega columns, 3 x nv */
-    double *Y = W + 3 * nv; /* Y columns, 3 x nv */
+    double *KB = B + 7 * nv; /* k * B columns */
+    double *W = KB + 7 * nv; /* omega columns, 3 x nv */
+    double *Y = W + 3 * nv;  /* Y columns, 3 x nv */
     double energy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         double x[7], t[7], k[7], diff[7], rho[7];
@@ -140,6 +148,9 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
             any_k |= k[c] != 0.0;
         }
         if (!any_k) continue;
+        Py_ssize_t m = 0;
+        for (Py_ssize_t a = 0; a < nv; a++)
+            if (AT(S, i, a) != 0.0) cols[m++] = a;
         const double *p = x, *v = x + 3;
         double w = x[6];
         /* g = E(theta)^T rho_theta with E = [w I - [v]x; -v^T] (d theta = 1/2 E omega) */
@@ -148,14 +159,10 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
         for (int c = 0; c < 3; c++) g[c] = w * rv[c] + vxr[c] - rho[6] * v[c];
         double cth = rv[0] * v[0] + rv[1] * v[1] + rv[2] * v[2] + rho[6] * w;
         double rmu[3] = {rho[0], rho[1], rho[2]};
-        for (Py_ssize_t a = 0; a < nv; a++) {
-            double *col = B + 7 * a;
-            double *om = W + 3 * a;
-            if (AT(S, i, a) == 0.0) {
-                memset(col, 0, 7 * sizeof(double));
-                om[0] = om[1] = om[2] = 0.0;
-                continue;
-            }
+        for (Py_ssize_t ia = 0; ia < m; ia++) {
+            Py_ssize_t a = cols[ia];
+            double *col = B + 7 * ia, *kcol = KB + 7 * ia;
+            double *om = W + 3 * ia;
             double v0[3] = {AT(J, 0, a), AT(J, 1, a), AT(J, 2, a)};
             om[0] = AT(J, 3, a);
             om[1] = AT(J, 4, a);
@@ -167,48 +174,51 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
             for (int c = 0; c < 3; c++) col[3 + c] = 0.5 * (w * om[c] + oxv[c]); /* 1/2 [0, omega] (x) theta */
             col[6] = -0.5 * dot3(om, v);
             double ga = 0.0;
-            for (int c = 0; c < 7; c++) ga += rho[c] * col[c];
+            for (int c = 0; c < 7; c++) {
+                ga += rho[c] * col[c];
+                kcol[c] = k[c] * col[c];
+            }
             grad[a * gs] += ga;
             if (hessian) {
                 /* Y_b = J_lin,b x rho_mu + 1/4 (omega_b x g - c omega_b) */
                 double t1[3], t2[3];
                 cross(col, rmu, t1);
                 cross(om, g, t2);
-                for (int c = 0; c < 3; c++) Y[3 * a + c] = t1[c] + 0.25 * (t2[c] - cth * om[c]);
+                for (int c = 0; c < 3; c++) Y[3 * ia + c] = t1[c] + 0.25 * (t2[c] - cth * om[c]);
             }
         }
-        for (Py_ssize_t a = 0; a < nv; a++) {
-            if (AT(S, i, a) == 0.0) continue;
-            const double *ca = B + 7 * a;
-            for (Py_ssize_t c = a; c < nv; c++) {
-                if (AT(S, i, c) == 0.0) continue;
-                const double *cc = B + 7 * c;
+        for (Py_ssize_t ia = 0; ia < m; ia++) {
+            const double *ka = KB + 7 * ia;
+            Py_ssize_t a = cols[ia];
+            for (Py_ssize_t ic = ia; ic < m; ic++) {
+                const double *cc = B + 7 * ic;
                 double s = 0.0;
-                for (int r = 0; r < 7; r++) s += k[r] * ca[r] * cc[r];
-                AT(H, a, c) += s;
+                for (int r = 0; r < 7; r++) s += ka[r] * cc[r];
+                HH(a, cols[ic]) += s;
             }
         }
         if (hessian) {
             /* A[a, b] = omega_a . Y_b; the upper triangle pairs an ancestor column a with a
              * descendant b; within one joint the block is symmetrized (stored in H's lower
              * triangle until the end). */
-            for (Py_ssize_t a = 0; a < nv; a++) {
-                if (AT(S, i, a) == 0.0) continue;
-                const double *oa = W + 3 * a;
-                for (Py_ssize_t c = 0; c < nv; c++) {
-                    if (AT(S, i, c) == 0.0) continue;
-                    if (c < a && AT(SJ, a, c) == 0.0) continue;
-                    double s = dot3(oa, Y + 3 * c);
-                    if (AT(SJ, a, c) != 0.0) {
+            for (Py_ssize_t ia = 0; ia < m; ia++) {
+                Py_ssize_t a = cols[ia];
+                const double *oa = W + 3 * ia;
+                for (Py_ssize_t ic = 0; ic < m; ic++) {
+                    Py_ssize_t c = cols[ic];
+                    int same = AT(SJ, a, c) != 0.0;
+                    if (c < a && !same) continue;
+                    double s = dot3(oa, Y + 3 * ic);
+                    if (same) {
                         if (c == a) {
-                            AT(H, a, a) += s;
+                            HH(a, a) += s;
                         } else if (c > a) {
-                            AT(H, a, c) += 0.5 * s;
+                            HH(a, c) += 0.5 * s;
                         } else {
-                            AT(H, c, a) += 0.5 * s; /* A[a, c] with a > c: the transpose half */
+                            HH(c, a) += 0.5 * s; /* A[a, c] with a > c: the transpose half */
                         }
                     } else {
-                        AT(H, a, c) += s;
+                        HH(a, c) += s;
                     }
                 }
             }
@@ -216,11 +226,13 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
     }
     double gsq = 0.0, hmax = 0.0;
     for (Py_ssize_t a = 0; a < nv; a++) {
-        for (Py_ssize_t c = 0; c < a; c++) AT(H, a, c) = AT(H, c, a);
+        for (Py_ssize_t c = 0; c < a; c++) HH(a, c) = HH(c, a);
         gsq += grad[a * gs] * grad[a * gs];
-        if (a == 0 || AT(H, a, a) > hmax) hmax = AT(H, a, a);
+        if (a == 0 || HH(a, a) > hmax) hmax = HH(a, a);
     }
+#undef HH
     PyMem_Free(B);
+    PyMem_Free(cols);
     release(b, 9);
     return Py_BuildValue("(ddd)", energy, gsq, hmax);
 }
@@ -624,6 +636,122 @@ static PyObject *nullspace_system(PyObject *self, PyObject *const *args, Py_ssiz
     PyMem_Free(perm);
     release(b, 8);
     return PyLong_FromSsize_t(rank);
+}
+
+/* index k of a float64 buffer holding integer indices */
+#define IDX(b, k) ((Py_ssize_t)(*(double *)((char *)(b).view.buf + (k) * (b).view.strides[0])))
+#define EL(b, k) (*(double *)((char *)(b).view.buf + (k) * (b).view.strides[0]))
+
+/* clip_limits(q, iq, lo, hi): q[iq[k]] clipped into [lo[k], hi[k]] in place (the joint
+ * limits of the spec; iq float64 indices). */
+static PyObject *clip_limits(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "clip_limits takes 4 arguments");
+        return NULL;
+    }
+    Buf b[4];
+    memset(b, 0, sizeof(b));
+    static const char *names[4] = {"q", "iq", "lo", "hi"};
+    for (int i = 0; i < 4; i++) {
+        if (get_buf(args[i], &b[i], i == 0, names[i]) < 0) {
+            release(b, 4);
+            return NULL;
+        }
+    }
+    Py_ssize_t m = b[1].view.ndim == 1 ? b[1].view.shape[0] : -1;
+    if (b[0].view.ndim != 1 || m < 0 || b[2].view.ndim != 1 || b[2].view.shape[0] != m || b[3].view.ndim != 1 ||
+        b[3].view.shape[0] != m) {
+        PyErr_SetString(PyExc_ValueError, "q, iq, lo and hi must be vectors, iq, lo and hi of one length");
+        release(b, 4);
+        return NULL;
+    }
+    Py_ssize_t nq = b[0].view.shape[0];
+    for (Py_ssize_t k = 0; k < m; k++) {
+        Py_ssize_t i = IDX(b[1], k);
+        if (i < 0 || i >= nq) {
+            PyErr_SetString(PyExc_IndexError, "iq out of range");
+            release(b, 4);
+            return NULL;
+        }
+        double x = EL(b[0], i), lo = EL(b[2], k), hi = EL(b[3], k);
+        /* as np.clip: the upper bound wins when lo > hi */
+        EL(b[0], i) = x < lo ? lo : x;
+        if (EL(b[0], i) > hi) EL(b[0], i) = hi;
+    }
+    release(b, 4);
+    Py_RETURN_NONE;
+}
+
+/* hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> ||grad||^2
+ * The joints that sit at a limit (q[iq[k]] <= lo_at[k] or >= hi_at[k]) and are pushed
+ * outwards (descent -grad leaves the range) taken out of the Newton system, in place:
+ * zero gradient, zero row and column of H with its largest diagonal entry (before the
+ * change, at least 1e-12) on the diagonal (projected Levenberg-Marquardt). */
+static PyObject *hold_limits(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "hold_limits takes 7 arguments");
+        return NULL;
+    }
+    Buf b[7];
+    memset(b, 0, sizeof(b));
+    static const char *names[7] = {"q", "iq", "iv", "lo_at", "hi_at", "grad", "H"};
+    for (int i = 0; i < 7; i++) {
+        if (get_buf(args[i], &b[i], i >= 5, names[i]) < 0) {
+            release(b, 7);
+            return NULL;
+        }
+    }
+    Py_ssize_t m = b[1].view.ndim == 1 ? b[1].view.shape[0] : -1;
+    Py_ssize_t nv = b[5].view.ndim == 1 ? b[5].view.shape[0] : -1;
+    int bad = b[0].view.ndim != 1 || m < 0 || nv < 0 || check_2d(&b[6], nv, nv, "H");
+    for (int i = 2; i < 5 && !bad; i++) bad = b[i].view.ndim != 1 || b[i].view.shape[0] != m;
+    if (bad) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "iq, iv, lo_at and hi_at must be vectors of one length");
+        release(b, 7);
+        return NULL;
+    }
+    Py_ssize_t nq = b[0].view.shape[0];
+    char *active = (char *)PyMem_Malloc((size_t)m + 1);
+    if (active == NULL) {
+        release(b, 7);
+        return PyErr_NoMemory();
+    }
+    int any = 0;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        Py_ssize_t i = IDX(b[1], k), a = IDX(b[2], k);
+        if (i < 0 || i >= nq || a < 0 || a >= nv) {
+            PyErr_SetString(PyExc_IndexError, "iq or iv out of range");
+            PyMem_Free(active);
+            release(b, 7);
+            return NULL;
+        }
+        double x = EL(b[0], i), g = EL(b[5], a);
+        active[k] = (x <= EL(b[3], k) && g > 0) || (x >= EL(b[4], k) && g < 0);
+        any |= active[k];
+    }
+    if (any) {
+        double d = AT(b[6], 0, 0);
+        for (Py_ssize_t c = 1; c < nv; c++)
+            if (AT(b[6], c, c) > d) d = AT(b[6], c, c);
+        if (!(d > 1e-12)) d = 1e-12;
+        for (Py_ssize_t k = 0; k < m; k++) {
+            if (!active[k]) continue;
+            Py_ssize_t a = IDX(b[2], k);
+            EL(b[5], a) = 0.0;
+            for (Py_ssize_t c = 0; c < nv; c++) AT(b[6], a, c) = AT(b[6], c, a) = 0.0;
+        }
+        for (Py_ssize_t k = 0; k < m; k++)
+            if (active[k]) AT(b[6], IDX(b[2], k), IDX(b[2], k)) = d;
+    }
+    PyMem_Free(active);
+    double gsq = 0.0;
+    for (Py_ssize_t a = 0; a < nv; a++) gsq += EL(b[5], a) * EL(b[5], a);
+    release(b, 7);
+    return PyFloat_FromDouble(gsq);
 }
 
 /* solve_shifted(H, grad, shift, step_out) -> bool
@@ -1929,6 +2057,10 @@ static PyMethodDef methods[] = {
      "closure_terms(J, X, moving, kind, end, vec, row, coef, order, r, Jc, H, what): loop closures"},
     {"nullspace_system", (PyCFunction)(void (*)(void))nullspace_system, METH_FASTCALL,
      "nullspace_system(A, g, H, C, N, Hr, gr, lam) -> rank: the Newton system on the constraints' null space"},
+    {"clip_limits", (PyCFunction)(void (*)(void))clip_limits, METH_FASTCALL,
+     "clip_limits(q, iq, lo, hi): the limited coordinates of q clipped into their limits, in place"},
+    {"hold_limits", (PyCFunction)(void (*)(void))hold_limits, METH_FASTCALL,
+     "hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> |grad|^2: joints held at their limits"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
     {NULL, NULL, 0, NULL},

@@ -26,6 +26,7 @@ from scipy.linalg import lapack
 
 __all__ = [
     "body_boxes",
+    "clip_limits",
     "closure_terms",
     "ellipsoid_a2",
     "estep_body",
@@ -33,6 +34,7 @@ __all__ = [
     "estep_view",
     "fit_body",
     "frame_coordinates",
+    "hold_limits",
     "linearize",
     "nullspace_system",
     "pose_springs",
@@ -277,6 +279,31 @@ def solve_shifted(H, grad, shift, step) -> bool:
     step[:] = lapack.dpotrs(L, -np.asarray(grad, dtype=float), lower=1)[0]
     return True
 
+
+
+def clip_limits(q, iq, lo, hi) -> None:
+    """``q[iq]`` clipped into ``[lo, hi]`` in place (the spec's joint limits; ``iq`` float
+    indices, as every index array of the kernels)."""
+    i = iq.astype(int)
+    q[i] = np.clip(q[i], lo, hi)
+
+
+def hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> float:
+    """The joints at a limit (``q[iq] <= lo_at`` or ``>= hi_at``) that descent ``-grad``
+    pushes outwards taken out of the Newton system in place: zero gradient, zero row and
+    column of ``H`` with H's largest diagonal entry (at least 1e-12) on the diagonal
+    (projected Levenberg-Marquardt).  Returns ``|grad|²``."""
+    x, v = q[iq.astype(int)], iv.astype(int)
+    g = grad[v]
+    active = ((x <= lo_at) & (g > 0)) | ((x >= hi_at) & (g < 0))
+    if active.any():
+        a = v[active]
+        d = max(float(H.diagonal().max()), 1e-12)
+        grad[a] = 0.0
+        H[a, :] = 0.0
+        H[:, a] = 0.0
+        H[a, a] = d
+    return float(grad @ grad)
 
 # ------------------------------------------------------------------ ECM
 

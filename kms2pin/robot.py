@@ -437,7 +437,8 @@ class Robot:
         starts, blocks = self._quaternions
         if not len(starts):
             return q
-        n2 = np.einsum("ij,ij->i", q[blocks], q[blocks])
+        b = q[blocks]
+        n2 = np.einsum("ij,ij->i", b, b)
         off = np.abs(n2 - 1.0) > _UNIT_TOL
         if not off.any():  # the usual case: every quaternion unit
             return q

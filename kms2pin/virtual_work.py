@@ -75,7 +75,7 @@ def target_array(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.n
     Raises TargetError (a ValueError) naming the body for NaN or non-unit targets.
     """
     n = len(robot.bodies)
-    if isinstance(targets, Mapping):
+    if not isinstance(targets, np.ndarray) and isinstance(targets, Mapping):
         out = np.zeros((n, 7))
         out[:, 3] = 1.0
         mask = np.zeros(n, dtype=bool)
@@ -187,6 +187,8 @@ class _Structure:
             # (q indices, v indices, lower, upper, and the values at or below / above which a
             # coordinate counts as at its limit)
             self.limits = (iq, iv, lo, hi, lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
+            # the same for the kernels clip_limits and hold_limits (float64 indices)
+            self.kernel_limits = (iq.astype(float), iv.astype(float), lo, hi, *self.limits[4:])
         # loop closures: the column order of their curvature (kms2pin.closures.column_order)
         self.order = column_order(model) if robot.closures else None
 
@@ -221,9 +223,8 @@ class _Evaluator:
         self.model, self.data = robot.model, robot.data
         self.n = len(robot.frame_ids)
         self.s = _structure(robot)
-        order = [0, 1, 2, 4, 5, 6, 3]  # [mu, theta0..3] -> [mu, x, y, z, w]
-        self.targets = targets[:, order]
-        self.k = k[:, order]
+        self.targets = targets.take(_TO_XYZW, axis=1)
+        self.k = k.take(_TO_XYZW, axis=1)
 
     def linearize(self, q: np.ndarray, hessian: bool = True):
         """Energy, gradient B^T K (q_max - q') = -B^T Q (nv,), Newton Hessian, internal coords."""
@@ -252,6 +253,7 @@ class _Evaluator:
 
 
 _TO_THESIS = [0, 1, 2, 6, 3, 4, 5]  # [mu, x, y, z, w] -> [mu, theta0..3]
+_TO_XYZW = np.array([0, 1, 2, 4, 5, 6, 3])  # [mu, theta0..3] -> [mu, x, y, z, w]
 
 
 def static_update(
@@ -306,15 +308,16 @@ def static_update(
     ev = _Evaluator(robot, tgt, k)
     if robot.closures:
         return _closed_static_update(robot, q_in, ev, max_iter, tol)
-    nv = robot.model.nv
-    step = np.empty(nv)
-    bounds = ev.s.limits
-    if bounds is not None:
-        q = robot.clamp(q)
+    model = robot.model
+    step = np.empty(model.nv)
+    limited = ev.s.limits is not None
+    if limited:
+        iq, iv, lo, hi, lo_at, hi_at = ev.s.kernel_limits
+        kernels.clip_limits(q, iq, lo, hi)
 
     energy, grad, H, X, diff, gsq, hmax = ev.linearize_full(q)
-    if bounds is not None:
-        grad, H, gsq = _hold_active(bounds, q, grad, H)
+    if limited:
+        gsq = kernels.hold_limits(q, iq, iv, lo_at, hi_at, grad, H)
     lam = 1e-8
     it = 0
     converged = False
@@ -329,8 +332,10 @@ def static_update(
         it += 1
         # Levenberg-Marquardt on the Newton system: accept a step only if E decreases.
         def trial(step, q=q):
-            q_new = pin.integrate(robot.model, q, step)
-            return robot.clamp(q_new) if bounds is not None else q_new
+            q_new = pin.integrate(model, q, step)
+            if limited:
+                kernels.clip_limits(q_new, iq, lo, hi)
+            return q_new
 
         lam, q_new, lin = _levenberg_marquardt(H, grad, lam, max(hmax, 1e-12), energy, step, trial, ev.linearize_full)
         if q_new is None:
@@ -338,8 +343,8 @@ def static_update(
             break
         q = q_new
         energy, grad, H, X, diff, gsq, hmax = lin
-        if bounds is not None:
-            grad, H, gsq = _hold_active(bounds, q, grad, H)
+        if limited:
+            gsq = kernels.hold_limits(q, iq, iv, lo_at, hi_at, grad, H)
     # a revolute angle and itself plus a full turn are one pose: report the one nearest the
     # input (a joint with limits stays where they put it)
     rev = ev.s.unlimited_revolute_q
@@ -461,27 +466,6 @@ def _levenberg_marquardt(H: np.ndarray, grad: np.ndarray, lam: float, scale: flo
                     return max(lam * 0.1, 1e-12), q_new, lin
         lam = max(lam * 10.0, 1e-8)
     return lam, None, None
-
-
-def _hold_active(bounds, q: np.ndarray, grad: np.ndarray, H: np.ndarray):
-    """Gradient and Newton matrix with the joints that sit at a limit and are pushed
-    outwards (descent -grad leaves the range) taken out: zero gradient, unit row and
-    column, in place.  Returns them and the squared norm of the projected gradient."""
-    iq, iv, _, _, lo_at, hi_at = bounds
-    x = q[iq]
-    low, high = x <= lo_at, x >= hi_at
-    if not (low.any() or high.any()):  # the usual case: no joint at a limit
-        return grad, H, float(grad @ grad)
-    g = grad[iv]
-    active = (low & (g > 0)) | (high & (g < 0))
-    if active.any():
-        a = iv[active]
-        grad[a] = 0.0
-        d = max(float(H.diagonal().max()), 1e-12)
-        H[a, :] = 0.0
-        H[:, a] = 0.0
-        H[a, a] = d
-    return grad, H, float(grad @ grad)
 
 
 def perturbed_targets(

@@ -191,6 +191,39 @@ def _solve_shifted(rng, definite=True, shift=0.0):
     return [H, rng.normal(size=7), shift, np.full(7, 3.0)], (3,)
 
 
+def _limits(rng, nq=12, m=7):
+    """m limited coordinates of a q of nq: indices, bounds, and a q with some outside them."""
+    iq = rng.choice(nq, m, replace=False).astype(float)
+    lo = rng.uniform(-2.0, 0.0, m)
+    hi = lo + rng.uniform(0.5, 3.0, m)
+    q = rng.uniform(-4.0, 4.0, nq)
+    return q, iq, lo, hi
+
+
+def _clip_limits(rng):
+    q, iq, lo, hi = _limits(rng)
+    return [q, iq, lo, hi], (0,)
+
+
+def _hold_limits(rng, none_held=False):
+    """Joints at either limit pushed both ways (held when pushed outwards), and free ones."""
+    q, iq, lo, hi = _limits(rng)
+    nv = 10
+    iv = rng.choice(nv, len(iq), replace=False).astype(float)
+    i = iq.astype(int)
+    q[i] = np.clip(q[i], lo, hi)
+    q[i[:3]] = lo[:3]
+    q[i[3:5]] = hi[3:5]
+    grad = rng.normal(size=nv)
+    if none_held:  # pushed inwards only
+        v = iv.astype(int)
+        grad[v[:3]] = -np.abs(grad[v[:3]])
+        grad[v[3:5]] = np.abs(grad[v[3:5]])
+    M = rng.normal(size=(nv, nv))
+    span = hi - lo
+    return [q, iq, iv, lo + 1e-12 * span, hi - 1e-12 * span, grad, M @ M.T], (5, 6)
+
+
 def _closure_terms(rng, what=2):
     """Random dot-product terms of loop closures: 4 ends, 12 terms on 5 rows, 9 columns."""
     E, T, rows, nv = 4, 12, 5, 9
@@ -213,12 +246,19 @@ def _nullspace_system(rng, m=5, nv=9, dependent=False):
         A[2], A[3] = A[0] + A[1], 0.0
     M = rng.normal(size=(nv, nv))
     C = rng.normal(size=(max(m - 1, 0), nv, nv))
+    if dependent:  # the curvatures follow the rows (else the multipliers of the repeated rows,
+        C[2], C[3] = C[0] + C[1], 0.0  # not unique, weigh them differently in each kernel)
     args = [A, rng.normal(size=nv), M @ M.T, C + C.transpose(0, 2, 1), np.empty((nv, nv)), np.empty((nv, nv)),
             np.empty(nv), np.empty(m)]
-    return args, (4, 5, 6, 7)
+    # repeated rows have no unique multipliers (each kernel's pivoting picks its own basic
+    # ones): the test compares A^T lam instead
+    return args, (4, 5, 6) if dependent else (4, 5, 6, 7)
 
 
 CASES: dict[str, Callable] = {
+    "clip_limits": _clip_limits,
+    "hold_limits": _hold_limits,
+    "hold_limits-none-held": lambda rng: _hold_limits(rng, none_held=True),
     "closure_terms": _closure_terms,
     "closure_terms-residual": lambda rng: _closure_terms(rng, what=0),
     "closure_terms-jacobian": lambda rng: _closure_terms(rng, what=1),
@@ -252,6 +292,13 @@ CASES: dict[str, Callable] = {
     "solve_shifted-indefinite": lambda rng: _solve_shifted(rng, definite=False),
     "solve_shifted-shifted": lambda rng: _solve_shifted(rng, definite=False, shift=20.0),
 }
+
+
+def _lam(kernel, args):
+    """nullspace_system's multipliers (its last argument) on a copy of ``args``."""
+    a = _copy(args)
+    kernel(*a)
+    return a[7]
 
 
 def _copy(a):
@@ -297,6 +344,9 @@ def test_c_and_numpy_kernels_agree(case):
         np.testing.assert_array_equal(oc[0], on[0])
     if name == "solve_shifted":
         assert rn is (case != "solve_shifted-indefinite")
+    if name == "nullspace_system":  # the multipliers' forces A^T lam, unique also for repeated rows
+        A = args[0]
+        _assert_close(A.T @ _lam(impl["c"], args), A.T @ _lam(impl["numpy"], args), "A^T lam")
     if name == "estep_camera":
         assert not on[0].any()  # the union image zeroed again
 
@@ -312,6 +362,45 @@ def test_frame_coordinates_compose_the_placements(backend):
     for i, j in enumerate(joints.astype(int)):
         M = pin.XYZQUATToSE3(rows[j]) * pin.XYZQUATToSE3(offsets[i])
         np.testing.assert_allclose(pin.XYZQUATToSE3(out[i]).homogeneous, M.homogeneous, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_hold_limits_takes_out_the_joints_pushed_outwards(backend):
+    """Projected Levenberg-Marquardt's active set, checked element by element: a joint at its
+    lower limit with grad > 0 (descent pushes it below) or at its upper limit with grad < 0
+    is held (zero gradient, its row and column zero, the largest diagonal entry on the
+    diagonal); every other entry is untouched."""
+    if backend == "c":
+        require_kernels()
+    for seed in range(5):
+        args, _ = _hold_limits(np.random.default_rng(seed))
+        q, iq, iv, lo_at, hi_at, grad, H = args
+        g0, H0 = grad.copy(), H.copy()
+        gsq = native.implementations("hold_limits")[backend](*args)
+        held = [int(v) for k, v in enumerate(iv) if (q[int(iq[k])] <= lo_at[k] and g0[int(v)] > 0)
+                or (q[int(iq[k])] >= hi_at[k] and g0[int(v)] < 0)]
+        assert held  # the case holds some joints
+        free = [a for a in range(len(g0)) if a not in held]
+        np.testing.assert_array_equal(grad[held], 0.0)
+        np.testing.assert_array_equal(grad[free], g0[free])
+        np.testing.assert_array_equal(H[np.ix_(free, free)], H0[np.ix_(free, free)])
+        np.testing.assert_array_equal(H[np.ix_(held, free)], 0.0)
+        np.testing.assert_array_equal(H[np.ix_(held, held)], np.diag(np.full(len(held), H0.diagonal().max())))
+        assert gsq == pytest.approx(float(np.sum(g0[free] ** 2)), rel=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_clip_limits_clips_only_the_limited_coordinates(backend):
+    if backend == "c":
+        require_kernels()
+    q, iq, lo, hi = _limits(np.random.default_rng(7))
+    q0 = q.copy()
+    native.implementations("clip_limits")[backend](q, iq, lo, hi)
+    i = iq.astype(int)
+    expected = q0.copy()
+    expected[i] = np.minimum(np.maximum(q0[i], lo), hi)
+    np.testing.assert_array_equal(q, expected)
+    assert (q0[i] < lo).any() and (q0[i] > hi).any()  # the case clips both ways
 
 
 def test_use_switches_every_kernel_and_restores_the_choice():
