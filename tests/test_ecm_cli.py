@@ -476,3 +476,35 @@ def test_an_option_given_twice_is_a_usage_error(tmp_path, capsys):
         main(["track", LOWER, "--masks", "a", "--masks", "b", "-o", str(tmp_path / "o")])
     assert exc.value.code == 2
     assert "argument --masks: given twice ('a' and 'b')" in capsys.readouterr().err
+
+
+def test_preset_people_one_camera_is_changed_by_the_other_flags(tmp_path, capsys):
+    """--preset starts from a preset; a flag given beside it changes that option only; the
+    one-camera note is not printed once a preset is chosen."""
+    d = tmp_path / "m"
+    spec = str(SPECS / "lowerbody.kms")
+    assert main(["synth", spec, "--frames", "2", "-o", str(d)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "o"
+    assert main(["track", spec, "--masks", str(d), "--no-progress", "--no-video", "--preset", "people-one-camera",
+                 "--upright", "0.2", "-o", str(out)]) == 0
+    assert "note: one camera" not in capsys.readouterr().err
+    groups = json.loads((out / "meta.json").read_text())["options"]
+    meta = {name: value for group in groups.values() for name, value in group.items()}
+    assert meta["prediction"] == "learnt" and meta["reach_search"] is True  # the preset
+    assert meta["rest_prior"] == 0.01 and meta["upright"] == 0.2  # the preset, and the flag over it
+
+
+@pytest.mark.parametrize("name", ["people", "people-one-camera", "segmented-masks"])
+def test_the_flags_the_help_gives_for_a_preset_make_its_options(name):
+    """`track --help` spells each preset as flags; those flags, parsed, give the preset's options."""
+    import argparse
+
+    from kms2pin.commands._tracking import PRESETS, add_tracker_arguments, preset_flags, tracker_options
+
+    p = argparse.ArgumentParser()
+    add_tracker_arguments(p)
+    assert name in p.format_help()
+    by_flags = tracker_options(p.parse_args(preset_flags(PRESETS[name]).split()))
+    by_preset = tracker_options(p.parse_args(["--preset", name]))
+    assert by_flags == by_preset != tracker_options(p.parse_args([]))

@@ -10,11 +10,39 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from ..ecm.options import Preset, TrackerOptions, as_options, cli_dest, cli_fields, cli_number_range, is_switch
+from ..ecm.options import (
+    PEOPLE,
+    PEOPLE_ONE_CAMERA,
+    SEGMENTED_MASKS,
+    Preset,
+    TrackerOptions,
+    as_options,
+    cli_dest,
+    cli_fields,
+    cli_number_range,
+    is_switch,
+)
 from ..errors import OptionError, UsageError
 from ._common import number
 
-__all__ = ["add_tracker_arguments", "tracker_options"]
+__all__ = ["PRESETS", "add_tracker_arguments", "tracker_options"]
+
+#: ``--preset``'s names for the presets of :mod:`kms2pin.ecm.options` (docs/tracking.md)
+PRESETS = {"people": PEOPLE, "people-one-camera": PEOPLE_ONE_CAMERA, "segmented-masks": SEGMENTED_MASKS}
+
+
+def preset_flags(preset: Preset) -> str:
+    """A preset as the flags that give the same options (``--prediction learnt --reach-search``)."""
+    fields = {f.name: f for f in cli_fields()}
+    words = []
+    for name, value in preset.overrides.items():
+        flag = fields[name].metadata["cli"].flag
+        if is_switch(fields[name]):
+            off = flag.startswith("--no-")
+            words.append(flag if value == (not off) else f"({name} {value})")
+        else:
+            words.append(f"{flag} {value:g}" if isinstance(value, float) else f"{flag} {value}")
+    return " ".join(words)
 
 
 def _default_words(f: dataclasses.Field) -> str:
@@ -24,7 +52,10 @@ def _default_words(f: dataclasses.Field) -> str:
 
 
 def add_tracker_arguments(p: argparse.ArgumentParser) -> None:
-    """One argument per option with a flag; each defaults to None (not given)."""
+    """``--preset``, and one argument per option with a flag; each defaults to None (not given)."""
+    p.add_argument("--preset", choices=PRESETS, default=None,
+                   help="start from a preset of options, changed by the other flags (docs/tracking.md): "
+                        + "; ".join(f"{name} = {preset_flags(preset)}" for name, preset in PRESETS.items()))
     for f in cli_fields():
         cli = f.metadata["cli"]
         help_text = f.metadata["help"]
@@ -50,8 +81,15 @@ def add_tracker_arguments(p: argparse.ArgumentParser) -> None:
 
 def tracker_options(args: argparse.Namespace, base: TrackerOptions | Preset | None = None,
                     **fixed) -> TrackerOptions:
-    """``base`` with the options given on the command line, then ``fixed`` (set by the
-    command itself).  A value the options refuse is a :class:`UsageError` naming its flag."""
+    """``base`` with ``--preset``'s options, then the options given on the command line, then
+    ``fixed`` (set by the command itself).  A value the options refuse is a
+    :class:`UsageError` naming its flag."""
+    preset = getattr(args, "preset", None)
+    if preset is not None:
+        if base is not None and not isinstance(base, Preset):
+            raise TypeError("--preset combines with a preset base only")
+        chosen = PRESETS[preset]
+        base = chosen if base is None else Preset(f"{base.name}, {chosen.name}", {**base.overrides, **chosen.overrides})
     overrides = {}
     for f in cli_fields():
         value = getattr(args, cli_dest(f), None)

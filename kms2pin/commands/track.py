@@ -216,12 +216,12 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
     if robot.root != "free" and (args.upright or args.depth_prior):
         print("note: --upright and --depth-prior act on a free root; with --root spec they do nothing",
               file=sys.stderr)
-    if n_cameras == 1 and robot.root == "free" and not args.upright and not args.rest_prior:
+    if n_cameras == 1 and robot.root == "free" and not args.upright and not args.rest_prior and args.preset is None:
         # with joint limits the upright prior alone tracked the walk benchmark best; without
         # them it lost seeds that the rest prior keeps (docs/design/tracking-history.md)
         priors = "--upright 0.1 holds" if robot.has_limits else "--upright 0.1 --rest-prior 0.01 hold"
         print(f"note: one camera: for a person walking or standing, {priors} what one view does not fix "
-              "(not for a hand; docs/tracking.md)", file=sys.stderr)
+              "(not for a hand; docs/tracking.md); for a real person, --preset people-one-camera", file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
