@@ -237,9 +237,35 @@ static PyObject *linearize(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return Py_BuildValue("(ddd)", energy, gsq, hmax);
 }
 
+/* a 7-vector row, a tuple of 7 floats (Pinocchio's SE3ToXYZQUATtuple) or a float64 array */
+static int read_row(PyObject *obj, double *a)
+{
+    if (PyTuple_Check(obj)) {
+        if (PyTuple_GET_SIZE(obj) != 7) {
+            PyErr_SetString(PyExc_ValueError, "rows must be 7-vectors");
+            return -1;
+        }
+        for (int c = 0; c < 7; c++) {
+            a[c] = PyFloat_AsDouble(PyTuple_GET_ITEM(obj, c));
+            if (a[c] == -1.0 && PyErr_Occurred()) return -1;
+        }
+        return 0;
+    }
+    Buf row;
+    memset(&row, 0, sizeof(row));
+    if (get_buf(obj, &row, 0, "row") < 0 || row.view.ndim != 1 || row.view.shape[0] != 7) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "rows must be 7-vectors");
+        release(&row, 1);
+        return -1;
+    }
+    for (int c = 0; c < 7; c++) a[c] = *(double *)((char *)row.view.buf + c * row.view.strides[0]);
+    release(&row, 1);
+    return 0;
+}
+
 /* frame_coordinates(rows, joints, offsets, out): body frames from joint placements.
  * rows[j] is joint j's world placement as [x, y, z, qx, qy, qz, qw] (Pinocchio's
- * SE3ToXYZQUAT of data.oMi[j]); body i sits at the fixed placement offsets[i] (same
+ * SE3ToXYZQUAT or SE3ToXYZQUATtuple of data.oMi[j]); body i sits at the fixed placement offsets[i] (same
  * layout) in joint joints[i]'s frame; out[i] = rows[joints[i]] * offsets[i]. */
 static PyObject *frame_coordinates(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -270,20 +296,12 @@ static PyObject *frame_coordinates(PyObject *self, PyObject *const *args, Py_ssi
             release(b, 3);
             return NULL;
         }
-        Buf row;
-        memset(&row, 0, sizeof(row));
-        if (get_buf(PyList_GET_ITEM(args[0], j), &row, 0, "row") < 0 || row.view.ndim != 1 || row.view.shape[0] != 7) {
-            if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "rows must be 7-vectors");
-            release(&row, 1);
+        double a[7], o[7];
+        if (read_row(PyList_GET_ITEM(args[0], j), a) < 0) {
             release(b, 3);
             return NULL;
         }
-        double a[7], o[7];
-        for (int c = 0; c < 7; c++) {
-            a[c] = *(double *)((char *)row.view.buf + c * row.view.strides[0]);
-            o[c] = AT(b[1], i, c);
-        }
-        release(&row, 1);
+        for (int c = 0; c < 7; c++) o[c] = AT(b[1], i, c);
         const double *av = a + 3, *ov = o + 3;
         double aw = a[6], ow = o[6];
         /* position: t_a + R(a) c = t_a + c + 2 w (v x c) + 2 v x (v x c) */

@@ -130,10 +130,10 @@ def _triangles(nv: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu(np.ones((nv, nv))), np.triu(np.ones((nv, nv)), 1)
 
 
-def frame_coordinates(rows: Sequence[np.ndarray], joints, offsets, out) -> None:
+def frame_coordinates(rows: Sequence[np.ndarray | tuple], joints, offsets, out) -> None:
     """Body frames from joint placements: ``out[i] = rows[joints[i]] * offsets[i]``, each
-    an XYZQUAT 7-vector (``rows[j]`` joint j's world placement, ``offsets[i]`` body i's
-    fixed placement in its joint's frame)."""
+    an XYZQUAT 7-vector (``rows[j]`` joint j's world placement, an array or a tuple of 7
+    floats; ``offsets[i]`` body i's fixed placement in its joint's frame)."""
     a = np.asarray(rows)[np.asarray(joints).astype(int)]
     av, aw, c = a[:, 3:6], a[:, 6:], offsets[:, :3]
     ov, ow = offsets[:, 3:6], offsets[:, 6:]

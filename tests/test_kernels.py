@@ -82,8 +82,8 @@ def _linearize(rng, hessian=True, one_k=False):
     return args, (6, 7, 8)
 
 
-def _frame_coordinates(rng):
-    rows = list(_coords(rng, 5))
+def _frame_coordinates(rng, tuples=False):
+    rows = [tuple(r) if tuples else r for r in _coords(rng, 5)]
     return [rows, rng.integers(0, 5, 8).astype(float), _coords(rng, 8), np.empty((8, 7))], (3,)
 
 
@@ -268,6 +268,7 @@ CASES: dict[str, Callable] = {
     "linearize": _linearize,
     "linearize-gauss-newton-one-k": lambda rng: _linearize(rng, hessian=False, one_k=True),
     "frame_coordinates": _frame_coordinates,
+    "frame_coordinates-tuples": lambda rng: _frame_coordinates(rng, tuples=True),
     "ellipsoid_a2": _ellipsoid_a2,
     "ellipsoid_a2-strided": lambda rng: _ellipsoid_a2(rng, strided=True),
     "silhouette_fit": _silhouette_fit,
