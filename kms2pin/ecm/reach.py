@@ -34,7 +34,7 @@ from ..robot import JointCoordinates, Robot
 from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM
 from .masks import Views
-from .silhouette import body_coverage, model_silhouette, silhouette_counts
+from .silhouette import body_coverage, group_counts, model_silhouette
 
 __all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
 
@@ -211,18 +211,18 @@ class ReachSearch:
         idx = list(moved)
         frames = [self.robot.frame_ids[i] for i in idx]
         oMf = self.robot.data.oMf
-        scored = []
+        Rs, ts = np.empty((len(trials), len(idx), 3, 3)), np.empty((len(trials), len(idx), 3))
         for k, c in enumerate(trials):
             self.robot.forward(c)  # the moved bodies' poses only
-            P = [pin.SE3(oMf[f]) for f in frames]
-            arrays = (np.array([M.rotation for M in P]), np.array([M.translation for M in P]))
-            inter = union = 0
-            for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
-                on_fg, on_bg = silhouette_counts(cam, P, inner[idx], fg, bg, arrays)
-                inter += i0 + on_fg
-                union += u0 + on_bg
-            scored.append((-(inter / union if union else 1.0), k, c))
-        return [c for *_, c in sorted(scored, key=lambda x: x[:2])[:keep]]
+            for j, f in enumerate(frames):
+                Rs[k, j], ts[k, j] = oMf[f].rotation, oMf[f].translation
+        inter, union = np.zeros(len(trials), dtype=int), np.zeros(len(trials), dtype=int)
+        for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
+            counts = group_counts(cam, Rs, ts, inner[idx], fg, bg)
+            inter += i0 + counts[:, 0]
+            union += u0 + counts[:, 1]
+        iou = [i / u if u else 1.0 for i, u in zip(inter.tolist(), union.tolist())]
+        return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
         """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (module docstring;
