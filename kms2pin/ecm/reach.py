@@ -246,17 +246,28 @@ class ReachSearch:
         (configuration, fit) if it gains :data:`GAIN`, else (``q``, ``fit``); and ``base``,
         ``q`` run on by the frame's ECM (made when first needed)."""
         best = (q, fit)
+        # a start met twice (a limb unbent that was at rest: its trial twice) ends the same:
+        # screened and refined once, by the configuration's bytes
+        screens: dict[bytes, tuple] = {}
+        refined: dict[bytes, tuple] = {}
         screened = []
         for k, c in enumerate(starts):
             if c is q:
                 continue
             c = self.robot.clamp(c)
-            if binned is not None:
-                c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
-            screened.append((-self.ecm.fit(c, views), k, c))
+            key = c.tobytes()
+            if key not in screens:
+                if binned is not None:
+                    c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
+                screens[key] = (c, self.ecm.fit(c, views))
+            c, fc = screens[key]
+            screened.append((-fc, k, c))
         for *_, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
-            qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
-            fc = self.ecm.fit(qc, views)
+            key = c.tobytes()
+            if key not in refined:
+                qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
+                refined[key] = (qc, self.ecm.fit(qc, views))
+            qc, fc = refined[key]
             if fc > fit + GAIN and base is None:  # the fair comparison: q run on as long
                 qb, _, _ = self.ecm.run(q, views, timings, coarse=coarse)
                 base = (qb, self.ecm.fit(qb, views))
