@@ -104,3 +104,22 @@ def test_group_counts_are_each_group_s_ray_cast_counts():
             sil = render_mask(cam, [(P, L) for P, L in zip(g, inner[idx])])
             assert c == [int((sil & on).sum()), int((sil & off).sum())]
         assert counts.min() > 0
+
+
+def test_group_counts_with_a_distorted_camera_count_each_group_s_whole_silhouette():
+    """A distorted camera takes the per-body path: each group's counts are still those of
+    its silhouette (model_silhouette, which is the ray-cast one) over the whole image."""
+    robot = _robot("fullbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    cam = Camera(Camera.default().K, pin.SE3.Identity(), 320, 240, dist=np.array([-0.12, 0.03, 0.001, -0.0015, 0.0]))
+    idx = [1, 2, 3]
+    rng = np.random.default_rng(4)
+    groups = [[robot.body_poses(robot.random_configuration(rng, 40))[i] for i in idx] for _ in range(3)]
+    Rs, ts = (np.array(x) for x in zip(*(pose_arrays(g) for g in groups)))
+    on = rng.random(cam.shape) < 0.5
+    off = ~on & (rng.random(cam.shape) < 0.5)
+    counts = group_counts(cam, Rs, ts, inner[idx], on, off)
+    for g, c in zip(groups, counts.tolist()):
+        sil = model_silhouette(cam, g, inner[idx])
+        assert c == [int((sil & on).sum()), int((sil & off).sum())]
+    assert counts.min() > 0
