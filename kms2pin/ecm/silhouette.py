@@ -14,9 +14,9 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..native import kernels
 from ..robot import Robot
 from .camera import Camera
-from ..native import kernels
 from .mstep import body_box_arrays, body_images, closest_approach, pose_arrays, world_rays
 from .projection import BBox, body_bbox
 

@@ -7,10 +7,9 @@ import pinocchio as pin
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.initialization import coarse_search, scaled_camera
-from kms2pin.ecm.raycast import render_mask
 from kms2pin.ecm.mstep import pose_arrays
-from kms2pin.ecm.silhouette import (body_coverage, group_counts, model_silhouette, silhouette_counts,
-                                    silhouette_iou)
+from kms2pin.ecm.raycast import render_mask
+from kms2pin.ecm.silhouette import body_coverage, group_counts, model_silhouette, silhouette_counts, silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
