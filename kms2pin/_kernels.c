@@ -960,6 +960,153 @@ static PyObject *ellipsoid_a2(PyObject *self, PyObject *const *args, Py_ssize_t 
     Py_RETURN_NONE;
 }
 
+/* silhouette_union(rays (H,W,3), A (n,9), e (n,3), box (n,4), out (H,W))
+ * The union of inner silhouettes (kms2pin.ecm.silhouette): sets out (bool/uint8)
+ * wherever the pixel's ray meets body i's ellipsoid (a^2 <= 1, the arithmetic of
+ * ellipsoid_a2) within body i's box (u0, v0, u1, v1; an empty box: none). */
+static int image_arg(PyObject *obj, Buf *b, int writable, const char *name, int bytes);
+
+static int union_image(PyObject *obj, Buf *b, int writable, const char *name, Py_ssize_t h, Py_ssize_t w)
+{
+    if (image_arg(obj, b, writable, name, 1) < 0) return -1;
+    if (b->view.shape[0] != h || b->view.shape[1] != w || b->view.strides[1] != 1) {
+        PyErr_Format(PyExc_ValueError, "%s must be a row-contiguous image of the ray grid's size", name);
+        return -1;
+    }
+    return 0;
+}
+
+/* Body i of A, e, box ORed into img (rows `stride` bytes apart; its pixel (0, 0) is the
+ * image's (v0, u0)), the box checked to lie in it. */
+static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
+                       Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
+{
+    Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
+    Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
+    if (bu1 <= bu0 || bv1 <= bv0) return;
+    double A[9], e[3], Ae[3];
+    for (int j = 0; j < 9; j++) A[j] = AT(b[1], i, j);
+    for (int j = 0; j < 3; j++) e[j] = AT(b[2], i, j);
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    const Quadric kq = quadric(A, e, Ae);
+    for (Py_ssize_t v = bv0; v < bv1; v++) {
+        const double *D = rays + 3 * (v * W + bu0);
+        unsigned char *o = img + (v - v0) * stride + (bu0 - u0);
+        for (Py_ssize_t c = 0; c < bu1 - bu0; c++) o[c] |= ray_closest(kq, D[3 * c], D[3 * c + 1], D[3 * c + 2]).a2 <= 1.0;
+    }
+}
+
+/* The rays, A, e and box arguments (b[0..3]); 0 or -1 with an exception set. */
+static int union_args(PyObject *const *args, Buf *b)
+{
+    int ok = get_buf(args[0], &b[0], 0, "rays") == 0 && b[0].view.ndim == 3 && b[0].view.shape[2] == 3 &&
+             PyBuffer_IsContiguous(&b[0].view, 'C');
+    if (ok) ok = get_buf(args[1], &b[1], 0, "A") == 0 && check_2d(&b[1], -1, 9, "A") == 0;
+    Py_ssize_t n = ok ? b[1].view.shape[0] : 0, H = ok ? b[0].view.shape[0] : 0, W = ok ? b[0].view.shape[1] : 0;
+    ok = ok && get_buf(args[2], &b[2], 0, "e") == 0 && check_2d(&b[2], n, 3, "e") == 0 &&
+         get_buf(args[3], &b[3], 0, "box") == 0 && check_2d(&b[3], n, 4, "box") == 0;
+    for (Py_ssize_t i = 0; ok && i < n; i++) {
+        double bu0 = AT(b[3], i, 0), bv0 = AT(b[3], i, 1), bu1 = AT(b[3], i, 2), bv1 = AT(b[3], i, 3);
+        if (bu1 > bu0 && bv1 > bv0 && (bu0 < 0 || bv0 < 0 || bu1 > W || bv1 > H)) {
+            PyErr_SetString(PyExc_ValueError, "a box is not within the image");
+            ok = 0;
+        }
+    }
+    if (!ok && !PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "rays must be a C-contiguous (H, W, 3) grid");
+    return ok ? 0 : -1;
+}
+
+static PyObject *silhouette_union(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_union(rays, A, e, box, out)");
+        return NULL;
+    }
+    Buf b[5];
+    memset(b, 0, sizeof(b));
+    if (union_args(args, b) < 0 || union_image(args[4], &b[4], 1, "out", b[0].view.shape[0], b[0].view.shape[1]) < 0) {
+        release(b, 5);
+        return NULL;
+    }
+    Py_ssize_t W = b[0].view.shape[1];
+    for (Py_ssize_t i = 0; i < b[1].view.shape[0]; i++)
+        paint_body(b, i, (const double *)b[0].view.buf, W, (unsigned char *)b[4].view.buf, b[4].view.strides[0], 0, 0);
+    release(b, 5);
+    Py_RETURN_NONE;
+}
+
+/* silhouette_counts(rays (H,W,3), A (n,9), e (n,3), box (n,4), offset (K+1,), on (H,W), off (H,W),
+ *                   counts_out (K,2))
+ * For K groups of bodies (group k: bodies offset[k]..offset[k+1]), each's union as
+ * silhouette_union's, painted into a scratch image over its boxes' bounding box:
+ * counts_out[k] = how many pixels of it the images on and off (bool/uint8) hold. */
+static PyObject *silhouette_counts(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_counts(rays, A, e, box, offset, on, off, counts)");
+        return NULL;
+    }
+    Buf b[8];
+    memset(b, 0, sizeof(b));
+    int ok = union_args(args, b) == 0;
+    Py_ssize_t n = ok ? b[1].view.shape[0] : 0, H = ok ? b[0].view.shape[0] : 0, W = ok ? b[0].view.shape[1] : 0;
+    ok = ok && get_buf(args[4], &b[4], 0, "offset") == 0 && b[4].view.ndim == 1 && b[4].view.shape[0] >= 1 &&
+         union_image(args[5], &b[5], 0, "on", H, W) == 0 && union_image(args[6], &b[6], 0, "off", H, W) == 0;
+    Py_ssize_t K = ok ? b[4].view.shape[0] - 1 : 0;
+    ok = ok && get_buf(args[7], &b[7], 1, "counts") == 0 && check_2d(&b[7], K, 2, "counts") == 0;
+    for (Py_ssize_t k = 0; ok && k <= K; k++) {
+        double o = V(b[4], k);
+        if (!(o >= (k > 0 ? V(b[4], k - 1) : 0.0) && o <= (double)n)) {
+            PyErr_SetString(PyExc_ValueError, "offset must rise from 0 to at most the bodies' count");
+            ok = 0;
+        }
+    }
+    unsigned char *scratch = ok ? (unsigned char *)PyMem_Malloc((size_t)(H * W > 0 ? H * W : 1)) : NULL;
+    if (ok && scratch == NULL) {
+        PyErr_NoMemory();
+        ok = 0;
+    }
+    if (!ok) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "silhouette_counts: bad arguments");
+        release(b, 8);
+        return NULL;
+    }
+    const double *rays = (const double *)b[0].view.buf;
+    for (Py_ssize_t k = 0; k < K; k++) {
+        Py_ssize_t i0 = (Py_ssize_t)V(b[4], k), i1 = (Py_ssize_t)V(b[4], k + 1), v0 = H, u0 = W, v1 = 0, u1 = 0;
+        for (Py_ssize_t i = i0; i < i1; i++) { /* the bounding box of the group's boxes */
+            Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
+            Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
+            if (bu1 <= bu0 || bv1 <= bv0) continue;
+            v0 = bv0 < v0 ? bv0 : v0;
+            u0 = bu0 < u0 ? bu0 : u0;
+            v1 = bv1 > v1 ? bv1 : v1;
+            u1 = bu1 > u1 ? bu1 : u1;
+        }
+        Py_ssize_t w = u1 - u0, n_on = 0, n_off = 0;
+        if (v1 > v0 && w > 0) {
+            memset(scratch, 0, (size_t)((v1 - v0) * w));
+            for (Py_ssize_t i = i0; i < i1; i++) paint_body(b, i, rays, W, scratch, w, v0, u0);
+            for (Py_ssize_t v = v0; v < v1; v++) {
+                const unsigned char *o = scratch + (v - v0) * w;
+                const unsigned char *a = (const unsigned char *)b[5].view.buf + v * b[5].view.strides[0] + u0;
+                const unsigned char *z = (const unsigned char *)b[6].view.buf + v * b[6].view.strides[0] + u0;
+                for (Py_ssize_t c = 0; c < w; c++) {
+                    n_on += (o[c] != 0) & (a[c] != 0);
+                    n_off += (o[c] != 0) & (z[c] != 0);
+                }
+            }
+        }
+        AT(b[7], k, 0) = (double)n_on;
+        AT(b[7], k, 1) = (double)n_off;
+    }
+    PyMem_Free(scratch);
+    release(b, 8);
+    Py_RETURN_NONE;
+}
+
 typedef struct {
     Buf dirs, y, o, w;
     double centre[3];
@@ -2055,6 +2202,10 @@ static PyMethodDef methods[] = {
      "frame_coordinates(rows, joints, offsets, out): out[i] = rows[joints[i]] * offsets[i] (XYZQUAT)"},
     {"ellipsoid_a2", (PyCFunction)(void (*)(void))ellipsoid_a2, METH_FASTCALL,
      "ellipsoid_a2(dirs, A, e, out): closest approach a^2 of every ray to the ellipsoid"},
+    {"silhouette_union", (PyCFunction)(void (*)(void))silhouette_union, METH_FASTCALL,
+     "silhouette_union(rays, A, e, box, out): the bodies' inner silhouettes ORed into out"},
+    {"silhouette_counts", (PyCFunction)(void (*)(void))silhouette_counts, METH_FASTCALL,
+     "silhouette_counts(rays, A, e, box, offset, on, off, counts): groups' silhouettes counted on and off"},
     {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,
      "silhouette_fit(dirs, A, e, inv, y, o, weight, jac, H, grad) -> (cost, evidence)"},
     {"scale_fit", (PyCFunction)(void (*)(void))scale_fit, METH_FASTCALL,

@@ -39,7 +39,9 @@ __all__ = [
     "nullspace_system",
     "pose_springs",
     "scale_fit",
+    "silhouette_counts",
     "silhouette_fit",
+    "silhouette_union",
     "solve_shifted",
 ]
 
@@ -327,6 +329,39 @@ def ellipsoid_a2(dirs, A, e, out) -> None:
     in the ellipsoid metric."""
     qs, g = closest(dirs, A, e)
     out[:] = np.einsum("ij,ij->i", qs, g)
+
+
+def _paint(rays, A, e, box, img, v0: int, u0: int) -> None:
+    """Bodies ``A``, ``e``, ``box`` ORed into ``img``, whose pixel (0, 0) is (v0, u0)."""
+    for Ai, ei, (bu0, bv0, bu1, bv1) in zip(A, e, box.astype(int).tolist()):
+        if bu1 <= bu0 or bv1 <= bv0:
+            continue
+        dirs = rays[bv0:bv1, bu0:bu1].reshape(-1, 3)
+        a2 = np.empty(len(dirs))
+        ellipsoid_a2(dirs, Ai.reshape(3, 3), ei, a2)
+        img[bv0 - v0 : bv1 - v0, bu0 - u0 : bu1 - u0] |= (a2 <= 1.0).reshape(bv1 - bv0, bu1 - bu0)
+
+
+def silhouette_union(rays, A, e, box, out) -> None:
+    """Sets ``out`` (H, W) where the pixel's ray meets body i's ellipsoid (``a² <= 1``,
+    :func:`ellipsoid_a2`) within its box ``box[i]`` (u0, v0, u1, v1)."""
+    _paint(rays, A, e, box, out, 0, 0)
+
+
+def silhouette_counts(rays, A, e, box, offset, on, off, counts) -> None:
+    """``counts[k]``: how many pixels of the union of bodies ``offset[k]:offset[k+1]``
+    (as :func:`silhouette_union`'s) the images ``on`` and ``off`` hold."""
+    for k in range(len(offset) - 1):
+        i0, i1 = int(offset[k]), int(offset[k + 1])
+        b = box[i0:i1]
+        b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])].astype(int)
+        if not len(b):
+            counts[k] = 0.0
+            continue
+        u0, v0, u1, v1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
+        img = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+        _paint(rays, A[i0:i1], e[i0:i1], box[i0:i1], img, v0, u0)
+        counts[k] = np.count_nonzero(img & on[v0:v1, u0:u1]), np.count_nonzero(img & off[v0:v1, u0:u1])
 
 
 def _edge_sums(a2, D, inv, y, o, weight, H, grad) -> tuple[float, float]:

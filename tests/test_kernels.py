@@ -149,6 +149,39 @@ def _estep_camera(rng, mask="bool"):
     return args, (7, 8, 9, 10, 11)
 
 
+def _silhouette_bodies(rng, n: int, H: int, W: int):
+    """n bodies seen by the camera of :func:`_rays` (H, W, 0.3), their metrics (n, 9),
+    camera centres relative to them and boxes (the third out of view: empty)."""
+    A, e = [], []
+    for _ in range(n):
+        _, _, _, Ai, ei = _body(rng)
+        A.append(Ai.ravel())
+        e.append(ei + rng.normal(0, 0.3, 3))
+    # boxes around the image centre (where the bodies are), cutting their silhouettes
+    boxes = np.c_[rng.integers(0, W // 2 - 4, n), rng.integers(0, H // 2 - 4, n), rng.integers(W // 2 + 4, W + 1, n),
+                  rng.integers(H // 2 + 4, H + 1, n)].astype(float)
+    boxes[2 % n] = 0.0
+    return np.array(A), np.array(e), boxes
+
+
+def _silhouette_union(rng):
+    H, W = 60, 80
+    A, e, boxes = _silhouette_bodies(rng, 5, H, W)
+    out = rng.random((H, W)) < 0.1  # set pixels stay set
+    return [_rays(H, W, 0.3), A, e, boxes, out], (4,)
+
+
+def _silhouette_counts(rng, mask="bool"):
+    H, W = 60, 80
+    A, e, boxes = _silhouette_bodies(rng, 7, H, W)
+    on = rng.random((H, W)) < 0.5
+    off = ~on & (rng.random((H, W)) < 0.5)
+    if mask == "uint8":
+        on, off = on.astype(np.uint8), off.astype(np.uint8)
+    offset = np.array([0, 2, 2, 3, 7], float)  # groups of 2, 0, 1 (out of view) and 4 bodies
+    return [_rays(H, W, 0.3), A, e, boxes, offset, on, off, np.full((4, 2), -1.0)], (7,)
+
+
 def _fit_body(rng, max_step=-1.0, weighted=False):
     """Two cameras (at the origin looking along +z, at (8, 0, 8) along -x) see the body
     moved a little from where the fit starts."""
@@ -289,6 +322,9 @@ CASES: dict[str, Callable] = {
     "fit_body-max-step-weighted": lambda rng: _fit_body(rng, max_step=0.02, weighted=True),
     "pose_springs": _pose_springs,
     "body_boxes": _body_boxes,
+    "silhouette_union": _silhouette_union,
+    "silhouette_counts": _silhouette_counts,
+    "silhouette_counts-uint8": lambda rng: _silhouette_counts(rng, "uint8"),
     "solve_shifted": _solve_shifted,
     "solve_shifted-indefinite": lambda rng: _solve_shifted(rng, definite=False),
     "solve_shifted-shifted": lambda rng: _solve_shifted(rng, definite=False, shift=20.0),
@@ -350,6 +386,41 @@ def test_c_and_numpy_kernels_agree(case):
         _assert_close(A.T @ _lam(impl["c"], args), A.T @ _lam(impl["numpy"], args), "A^T lam")
     if name == "estep_camera":
         assert not on[0].any()  # the union image zeroed again
+    if name == "silhouette_union":
+        assert on[0].sum() > args[4].sum()  # bodies painted
+        np.testing.assert_array_equal(oc[0], on[0])
+    if name == "silhouette_counts":
+        assert (on[0][[1, 2]] == 0).all() and (on[0][[0, 3]] > 0).all()  # empty groups count nothing
+        np.testing.assert_array_equal(oc[0], on[0])
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_silhouette_counts_are_those_of_each_group_s_union(backend):
+    """Each group's counts are those of silhouette_union's image of the group alone."""
+    if backend == "c":
+        require_kernels()
+    args, _ = _silhouette_counts(np.random.default_rng(5))
+    rays, A, e, boxes, offset, on, off, counts = args
+    native.implementations("silhouette_counts")[backend](*args)
+    for k in range(len(offset) - 1):
+        sl = slice(int(offset[k]), int(offset[k + 1]))
+        img = np.zeros(on.shape, dtype=bool)
+        native.implementations("silhouette_union")["numpy"](rays, A[sl], e[sl], boxes[sl], img)
+        assert counts[k].tolist() == [(img & on).sum(), (img & off).sum()]
+
+
+def test_the_silhouette_kernels_refuse_boxes_off_the_image():
+    require_kernels()
+    args, _ = _silhouette_counts(np.random.default_rng(6))
+    k = native.implementations("silhouette_counts")["c"]
+    bad = args[3].copy()
+    bad[0, 2] = 81.0  # past the 80 columns
+    with pytest.raises(ValueError):
+        k(*args[:3], bad, *args[4:])
+    with pytest.raises(ValueError):
+        native.implementations("silhouette_union")["c"](*args[:3], bad, np.zeros((60, 80), dtype=bool))
+    with pytest.raises(ValueError):  # a mask of another size
+        k(*args[:5], args[5][:, :40], *args[6:])
 
 
 @pytest.mark.parametrize("backend", ["c", "numpy"])

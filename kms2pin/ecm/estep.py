@@ -19,7 +19,7 @@ import pinocchio as pin
 
 from ..native import kernels
 from .camera import Camera
-from .mstep import SLACK_PX, BodyImage, BodyView, body_box_arrays, body_images, world_rays
+from .mstep import SLACK_PX, BodyImage, BodyView, _frozen, body_box_arrays, body_images, world_rays
 from .projection import BBox
 
 __all__ = ["UnionEStep"]
@@ -136,12 +136,15 @@ class UnionEStep:
             log_free, dirs, sp, o, y,
         )
         out: list = [None] * n
-        ib, off = boxes.astype(int).tolist(), offset.astype(int).tolist()
+        ib, off, dl = boxes.astype(int).tolist(), offset.astype(int).tolist(), delta.tolist()
         for i in np.flatnonzero(seen).tolist():
             a, b = off[i], off[i + 1]
-            img = BodyImage(cam, BBox(*ib[i]), 1, dirs[a:b], float(delta[i]))
-            img.s = sp[a:b]
-            out[i] = self._subsampled(img, y[a:b], o[a:b], None)
+            u0, v0, u1, v1 = ib[i]
+            img = BodyImage(cam, _frozen(BBox, u0=u0, v0=v0, u1=u1, v1=v1), 1, dirs[a:b], dl[i], sp[a:b])
+            if b - a <= self.max_pixels:  # as _subsampled's
+                out[i] = _frozen(BodyView, image=img, y=y[a:b], o=o[a:b], weight=None)
+            else:
+                out[i] = self._subsampled(img, y[a:b], o[a:b], None)
         return out
 
     def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:

@@ -69,6 +69,15 @@ SLACK_PX = 2.0
 _WORLD_RAYS: weakref.WeakKeyDictionary[Camera, np.ndarray] = weakref.WeakKeyDictionary()
 
 
+def _frozen(cls, **fields):
+    """The frozen dataclass ``cls`` with ``fields`` (every one), made without its
+    ``__init__``'s per-field ``object.__setattr__``: the E-step and the M-step make a box,
+    a view and a fit per body (and camera) and iteration."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)
+    return obj
+
+
 def world_rays(camera: Camera) -> np.ndarray:
     """(H, W, 3) world directions of the pixel rays, scaled to unit camera depth (cached)."""
     r = _WORLD_RAYS.get(camera)
@@ -276,7 +285,7 @@ def fit_body(
         pose0.rotation, pose0.translation, inner, int(iterations), float(damping),
         -1.0 if max_step is None else float(max_step), R, t, H,
     )
-    return BodyFit(pin.SE3(R, t), H, evidence, cost)
+    return _frozen(BodyFit, pose=pin.SE3(R, t), hessian=H, evidence=evidence, cost=cost)
 
 
 def fit_bodies(

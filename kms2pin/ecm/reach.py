@@ -34,7 +34,7 @@ from ..robot import JointCoordinates, Robot
 from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM
 from .masks import Views
-from .silhouette import body_coverage, model_silhouette, silhouette_counts
+from .silhouette import body_coverage, group_counts, model_silhouette
 
 __all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
 
@@ -211,18 +211,18 @@ class ReachSearch:
         idx = list(moved)
         frames = [self.robot.frame_ids[i] for i in idx]
         oMf = self.robot.data.oMf
-        scored = []
+        Rs, ts = np.empty((len(trials), len(idx), 3, 3)), np.empty((len(trials), len(idx), 3))
         for k, c in enumerate(trials):
             self.robot.forward(c)  # the moved bodies' poses only
-            P = [pin.SE3(oMf[f]) for f in frames]
-            arrays = (np.array([M.rotation for M in P]), np.array([M.translation for M in P]))
-            inter = union = 0
-            for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
-                on_fg, on_bg = silhouette_counts(cam, P, inner[idx], fg, bg, arrays)
-                inter += i0 + on_fg
-                union += u0 + on_bg
-            scored.append((-(inter / union if union else 1.0), k, c))
-        return [c for *_, c in sorted(scored, key=lambda x: x[:2])[:keep]]
+            for j, f in enumerate(frames):
+                Rs[k, j], ts[k, j] = oMf[f].rotation, oMf[f].translation
+        inter, union = np.zeros(len(trials), dtype=int), np.zeros(len(trials), dtype=int)
+        for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
+            counts = group_counts(cam, Rs, ts, inner[idx], fg, bg)
+            inter += i0 + counts[:, 0]
+            union += u0 + counts[:, 1]
+        iou = [i / u if u else 1.0 for i, u in zip(inter.tolist(), union.tolist())]
+        return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
         """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (module docstring;
@@ -246,17 +246,28 @@ class ReachSearch:
         (configuration, fit) if it gains :data:`GAIN`, else (``q``, ``fit``); and ``base``,
         ``q`` run on by the frame's ECM (made when first needed)."""
         best = (q, fit)
+        # a start met twice (a limb unbent that was at rest: its trial twice) ends the same:
+        # screened and refined once, by the configuration's bytes
+        screens: dict[bytes, tuple] = {}
+        refined: dict[bytes, tuple] = {}
         screened = []
         for k, c in enumerate(starts):
             if c is q:
                 continue
             c = self.robot.clamp(c)
-            if binned is not None:
-                c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
-            screened.append((-self.ecm.fit(c, views), k, c))
+            key = c.tobytes()
+            if key not in screens:
+                if binned is not None:
+                    c, _, _ = self.ecm.run(c, views, timings, SCREEN_ITERATIONS, binned, binned=True)
+                screens[key] = (c, self.ecm.fit(c, views))
+            c, fc = screens[key]
+            screened.append((-fc, k, c))
         for *_, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
-            qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
-            fc = self.ecm.fit(qc, views)
+            key = c.tobytes()
+            if key not in refined:
+                qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)
+                refined[key] = (qc, self.ecm.fit(qc, views))
+            qc, fc = refined[key]
             if fc > fit + GAIN and base is None:  # the fair comparison: q run on as long
                 qb, _, _ = self.ecm.run(q, views, timings, coarse=coarse)
                 base = (qb, self.ecm.fit(qb, views))

@@ -14,12 +14,13 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..native import kernels
 from ..robot import Robot
 from .camera import Camera
-from .mstep import body_images, closest_approach, pose_arrays
+from .mstep import body_box_arrays, body_images, closest_approach, pose_arrays, world_rays
 from .projection import BBox, body_bbox
 
-__all__ = ["PoseCache", "body_coverage", "body_silhouettes", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
+__all__ = ["PoseCache", "body_coverage", "body_silhouettes", "group_counts", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
 
 
 class PoseCache:
@@ -52,14 +53,51 @@ def body_silhouettes(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray
             yield i, img.box, (a2 <= 1.0).reshape(img.shape)
 
 
+def _union_args(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray) -> tuple | None:
+    """The ``silhouette_union`` kernel's metrics (n, 9), camera centres relative to the
+    bodies (n, 3) and boxes (n, 4: u0, v0, u1, v1; empty: out of view), the boxes of
+    :func:`body_silhouettes`, of the bodies at rotations ``Rs`` (n, 3, 3) and centres
+    ``ts`` (n, 3); None when one needs :func:`body_images`' per-body path (a distorted
+    camera, a body straddling the camera plane)."""
+    if camera.dist is not None:
+        return None
+    status, boxes, _ = body_box_arrays(camera, Rs, ts, inner, 0.5, 0.0)
+    if (status == 1).any():
+        return None
+    boxes[status != 2] = 0.0
+    As = (Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)
+    return As.reshape(-1, 9), camera.centre - ts, boxes
+
+
 def model_silhouette(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray,
                      arrays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(H, W) bool: the pixels of ``camera`` whose centre's ray meets an inner ellipsoid
     (:func:`body_silhouettes`)."""
     model = np.zeros(camera.shape, dtype=bool)
+    if len(poses):
+        Rs, ts = pose_arrays(poses) if arrays is None else arrays
+        args = _union_args(camera, Rs, ts, np.asarray(inner, dtype=float).reshape(len(poses), 3))
+        if args is not None:
+            kernels.silhouette_union(world_rays(camera), *args, model)
+            return model
     for _, b, sil in body_silhouettes(camera, poses, inner, arrays):
         model[b.v0 : b.v1, b.u0 : b.u1] |= sil
     return model
+
+
+def group_counts(camera: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, on: np.ndarray,
+                 off: np.ndarray) -> np.ndarray:
+    """(K, 2) int: :func:`silhouette_counts` of K groups of m bodies at rotations ``Rs``
+    (K, m, 3, 3) and centres ``ts`` (K, m, 3), semi-axes ``inner`` (m, 3)."""
+    K, m = ts.shape[:2]
+    inners = np.tile(np.asarray(inner, dtype=float).reshape(m, 3), (K, 1))
+    args = _union_args(camera, Rs.reshape(K * m, 3, 3), ts.reshape(K * m, 3), inners)
+    if args is None:
+        return np.array([_counts_per_body(camera, [pin.SE3(R, t) for R, t in zip(Rs[k], ts[k])], inner, on, off,
+                                          (Rs[k], ts[k])) for k in range(K)], dtype=int).reshape(K, 2)
+    counts = np.empty((K, 2))
+    kernels.silhouette_counts(world_rays(camera), *args, np.arange(0, K * m + 1, m, dtype=float), on, off, counts)
+    return counts.astype(int)
 
 
 def silhouette_counts(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, on: np.ndarray,
@@ -67,6 +105,16 @@ def silhouette_counts(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarra
     """How many pixels of the bodies' silhouette (as :func:`model_silhouette`) fall where
     ``on`` and where ``off`` (bool images) hold, counted within the bodies' image boxes
     only."""
+    if not len(poses):
+        return 0, 0
+    Rs, ts = pose_arrays(poses) if arrays is None else arrays
+    on_, off_ = group_counts(camera, Rs[None], ts[None], inner, on, off)[0].tolist()
+    return on_, off_
+
+
+def _counts_per_body(camera: Camera, poses: Sequence[pin.SE3], inner: np.ndarray, on: np.ndarray, off: np.ndarray,
+                     arrays: tuple[np.ndarray, np.ndarray]) -> tuple[int, int]:
+    """:func:`silhouette_counts` by :func:`body_silhouettes` (any camera, any body)."""
     parts = list(body_silhouettes(camera, poses, inner, arrays))
     if not parts:
         return 0, 0

@@ -51,6 +51,19 @@ def test_points_behind_the_camera_project_to_nan():
     assert np.isnan(px[:2]).all() and np.isfinite(px[2]).all()
 
 
+def test_points_project_the_same_with_or_without_points_behind_the_camera():
+    """A point's pixel does not depend on the other points: all in front (project's
+    short path) or among points behind the camera, to the last bit."""
+    rng = np.random.default_rng(8)
+    for kind in (1, 2):
+        cam = random_camera(rng, kind)
+        pts = _random_points_in_front(rng, cam, 50)
+        behind = cam.centre - 2.0 * (pts - cam.centre)
+        mixed = cam.project(np.concatenate([pts, behind]))
+        assert np.isnan(mixed[50:]).all()
+        np.testing.assert_array_equal(cam.project(pts), mixed[:50])
+
+
 @pytest.mark.parametrize("with_dist", [False, True])
 def test_rays_back_project_pixels_onto_their_own_projection(with_dist):
     rng = np.random.default_rng(7)

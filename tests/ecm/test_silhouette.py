@@ -7,8 +7,9 @@ import pinocchio as pin
 
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.initialization import coarse_search, scaled_camera
+from kms2pin.ecm.mstep import pose_arrays
 from kms2pin.ecm.raycast import render_mask
-from kms2pin.ecm.silhouette import body_coverage, model_silhouette, silhouette_counts, silhouette_iou
+from kms2pin.ecm.silhouette import body_coverage, group_counts, model_silhouette, silhouette_counts, silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
@@ -83,3 +84,41 @@ def test_silhouette_counts_in_the_boxes_equal_those_over_the_whole_image():
         assert expected[0] > 20
     away = pin.SE3(np.eye(3), np.array([0.0, 0.0, -100.0]))  # out of view: no pixel
     assert silhouette_counts(cam, [away], inner[:1], on, off) == (0, 0)
+
+
+def test_group_counts_are_each_group_s_ray_cast_counts():
+    """Groups of the same bodies at random poses: each group's counts are those of its
+    silhouette by exact ray casting (an independent implementation), over the image."""
+    robot = _robot("fullbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    idx = [1, 2, 3]
+    rng = np.random.default_rng(3)
+    groups = [[robot.body_poses(robot.random_configuration(rng, 40))[i] for i in idx] for _ in range(4)]
+    Rs, ts = (np.array(x) for x in zip(*(pose_arrays(g) for g in groups)))
+    for cam in _cams(robot):
+        on = rng.random(cam.shape) < 0.5
+        off = ~on & (rng.random(cam.shape) < 0.5)
+        counts = group_counts(cam, Rs, ts, inner[idx], on, off)
+        for g, c in zip(groups, counts.tolist()):
+            sil = render_mask(cam, [(P, L) for P, L in zip(g, inner[idx])])
+            assert c == [int((sil & on).sum()), int((sil & off).sum())]
+        assert counts.min() > 0
+
+
+def test_group_counts_with_a_distorted_camera_count_each_group_s_whole_silhouette():
+    """A distorted camera takes the per-body path: each group's counts are still those of
+    its silhouette (model_silhouette, which is the ray-cast one) over the whole image."""
+    robot = _robot("fullbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    cam = Camera(Camera.default().K, pin.SE3.Identity(), 320, 240, dist=np.array([-0.12, 0.03, 0.001, -0.0015, 0.0]))
+    idx = [1, 2, 3]
+    rng = np.random.default_rng(4)
+    groups = [[robot.body_poses(robot.random_configuration(rng, 40))[i] for i in idx] for _ in range(3)]
+    Rs, ts = (np.array(x) for x in zip(*(pose_arrays(g) for g in groups)))
+    on = rng.random(cam.shape) < 0.5
+    off = ~on & (rng.random(cam.shape) < 0.5)
+    counts = group_counts(cam, Rs, ts, inner[idx], on, off)
+    for g, c in zip(groups, counts.tolist()):
+        sil = model_silhouette(cam, g, inner[idx])
+        assert c == [int((sil & on).sum()), int((sil & off).sum())]
+    assert counts.min() > 0
