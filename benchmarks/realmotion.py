@@ -26,7 +26,7 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   (below: for this model, the true joint positions exactly, the shape still not the
   subject's); with the presets for people (``kms2pin.ecm.PEOPLE``: the learnt
   motion model and the reach search; one camera ``PEOPLE_ONE_CAMERA``: those and the
-  upright and rest priors), or the tracker's defaults (``--defaults``).
+  upright, rest and ground priors), or the tracker's defaults (``--defaults``).
 - **Errors** at the 13 joints (hips, knees, ankles, shoulders, elbows, wrists, the neck),
   the mean distance per frame in mm, no alignment: the mean over the frames, the median,
   the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee

@@ -62,7 +62,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
     the sizes are refined (default 5, 0: never), and a bad count is a usage error;
     --limb-search-drop sets the search's fall in fit (default 0.015 with --masks), and
     --no-limb-hypothesis turns off the limb-search hypothesis (on with the limb search);
-    --tol-px sets the outlines' test of convergence (0: the joints' test alone).  Without
+    --tol-px sets the outlines' test of convergence (0: the joints' test alone); --ground and
+    --ground-height set the ground contact prior.  Without
     the priors a one-camera run points at the upright prior (the model has joint limits)."""
     d = tmp_path / "m"
     anatomical = str(SPECS / "anatomical" / "lowerbody.kms")  # joint limits: both hypotheses
@@ -71,7 +72,8 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
         "default": [],
         "off": ["--no-mirror-hypothesis", "--no-swap-hypothesis", "--no-limb-search", "--no-size-calibration",
                 "--depth-prior", "0.02", "--tol-px", "0.5",
-                "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01"],
+                "--upright", "0.1", "--up", "0", "0", "2", "--rest-prior", "0.01", "--ground", "0.5",
+                "--ground-height", "-1.5"],
         "binned": ["--binned-hypotheses", "--size-every", "0", "--limb-search-drop", "0.03", "--no-limb-hypothesis",
                    "--tol-px", "0"],
     }
@@ -98,13 +100,13 @@ def test_one_camera_options_reach_the_tracker(tmp_path, capsys):
             assert meta["mirror_hypothesis"] and meta["swap_hypothesis"] and meta["size_calibration"]
             assert meta["limb_search"] and meta["limb_search_drop"] == 0.015
             assert meta["depth_prior"] == 0.0 and meta["upright"] == 0.0 and meta["up"] == [0.0, 1.0, 0.0]
-            assert meta["rest_prior"] == 0.0
+            assert meta["rest_prior"] == 0.0 and meta["ground"] == 0.0 and meta["ground_height"] is None
             assert np.abs(scales - 1.0).max() > 0.01  # measured: synth's sizes differ by 10 %
         else:
             assert not (meta["mirror_hypothesis"] or meta["swap_hypothesis"] or meta["size_calibration"])
             assert not meta["limb_search"]
             assert meta["depth_prior"] == 0.02 and meta["upright"] == 0.1 and meta["up"] == [0.0, 0.0, 1.0]
-            assert meta["rest_prior"] == 0.01
+            assert meta["rest_prior"] == 0.01 and meta["ground"] == 0.5 and meta["ground_height"] == -1.5
             np.testing.assert_array_equal(scales, 1.0)
     for bad in ("-1", "2.5"):
         with pytest.raises(SystemExit) as exc:
@@ -314,7 +316,7 @@ def test_a_bad_depth_prior_is_a_usage_error_before_anything_is_written(tmp_path,
 
 @pytest.mark.parametrize(
     "flags", [["--upright", "-1"], ["--up", "0", "0", "0"], ["--up", "0", "nan", "1"], ["--rest-prior", "-0.01"],
-              ["--limb-search-drop", "-0.01"], ["--tol-px", "-0.1"]]
+              ["--limb-search-drop", "-0.01"], ["--tol-px", "-0.1"], ["--ground", "-1"], ["--ground-height", "nan"]]
 )
 def test_a_bad_upright_prior_is_a_usage_error_before_anything_is_written(tmp_path, capsys, flags):
     out = tmp_path / "out"

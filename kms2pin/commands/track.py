@@ -213,8 +213,8 @@ def _auto_init(robot: Robot, cameras, masks, frame: int) -> tuple[np.ndarray, fl
 
 def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
     """Notes on options that do nothing as given, and on one-camera tracking."""
-    if robot.root != "free" and (args.upright or args.depth_prior):
-        print("note: --upright and --depth-prior act on a free root; with --root spec they do nothing",
+    if robot.root != "free" and (args.upright or args.depth_prior or args.ground):
+        print("note: --upright, --depth-prior and --ground act on a free root; with --root spec they do nothing",
               file=sys.stderr)
     if n_cameras == 1 and robot.root == "free" and not args.upright and not args.rest_prior and args.preset is None:
         # with joint limits the upright prior alone tracked the walk benchmark best; without

@@ -208,6 +208,14 @@ class PriorOptions(_Group):
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
                                 range=Range(0.0), cli=Cli("--twist-prior", "K"))
+    ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
+                                "below it up, which gives one camera the depth (the floor: ground_height along "
+                                "'up'; the feet: the bodies lowest at q0; 0: off)",
+                           range=Range(0.0), cli=Cli("--ground", "K"))
+    ground_height: float | None = option(
+        None, "the floor's height along 'up' for 'ground' (spec units; None: the feet's lowest point at the "
+              "pose the sizes are measured at, q0)", range=Range(-np.inf, none_ok=True),
+        cli=Cli("--ground-height", "H"))
 
     def _check(self) -> None:
         try:
@@ -351,9 +359,10 @@ SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
 #: motion model and the reach search (docs/tracking.md, "Real motion")
 PEOPLE = Preset("people", {"prediction": "learnt", "reach_search": True})
-#: a person walking or standing, seen by one camera: :data:`PEOPLE`, and the upright and
-#: rest priors hold what one view does not fix (docs/design/tracking-history.md)
-PEOPLE_ONE_CAMERA = Preset("people, one camera", {**PEOPLE, "upright": 0.1, "rest_prior": 0.01})
+#: a person walking or standing, seen by one camera: :data:`PEOPLE`, and the upright, rest
+#: and ground priors hold what one view does not fix (the ground: the floor at the lowest
+#: foot of q0, along ``up``; docs/tracking.md, docs/design/tracking-history.md)
+PEOPLE_ONE_CAMERA = Preset("people, one camera", {**PEOPLE, "upright": 0.1, "rest_prior": 0.01, "ground": 0.1})
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["DepthPrior", "RestPrior", "TwistPrior", "UprightPrior"]
+__all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,93 @@ class DepthPrior:
             r = float(n @ (p - self.anchor))
             A[:3, :3] += k * np.outer(jac, jac)
             g[:3] += k * jac * r
+            energy += 0.5 * k * r * r
+        return energy
+
+
+#: the feet of :class:`GroundPrior`: bodies whose lowest point at the first pose lies within
+#: this share of the model's height above the lowest
+FOOT_MARGIN = 0.05
+
+
+def lowest_points(poses: Sequence[pin.SE3], inner: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(n, 3) each ellipsoid's lowest point along ``up`` (world): with ``w = Rᵀ up`` and
+    semi-axes L, ``t - R (L² w) / |L w|`` (the support point along -up)."""
+    out = np.empty((len(poses), 3))
+    for i, (P, L) in enumerate(zip(poses, inner)):
+        w = P.rotation.T @ up
+        Lw = L * w
+        out[i] = P.translation - P.rotation @ (L * Lw) / max(float(np.linalg.norm(Lw)), 1e-300)
+    return out
+
+
+@dataclass(frozen=True)
+class GroundPrior:
+    """Ground contact: the feet's lowest point stands on the floor, and no foot goes
+    through it.  With ``h_i = up · p_i - height`` the height above the floor of foot i's
+    lowest point p_i (its inner ellipsoid's support point along -``up``; world, spec
+    units), energy ½ k max(min_i h_i, 0)² + ½ k Σ_i min(h_i, 0)²: the lowest foot
+    pulled down onto the floor, any foot below it pushed up.  One view's unknown depth
+    is then fixed where the floor meets the ray through the foot.
+
+    p_i moves with its body to first order (the support point's own slide along the
+    surface does not change its height), so dh_i/dv = upᵀ J_v(p_i) + (r_i × up)ᵀ J_ω,
+    J the body's joint Jacobian in world-aligned axes at the joint origin o_i and
+    r_i = p_i - o_i; each active point adds k ∇h ∇hᵀ and k h ∇h to the Newton system
+    (the springs' static update, §2.3.3, eq. 2.28; a spring like eq. 2.33's on one
+    coordinate).  Stiffness: ``weight`` times the root translation's mean stiffness.
+
+    ``feet``: body indices; ``inner``: (n_bodies, 3) semi-axes, read at each call (the
+    tracker's measured sizes).
+    """
+
+    weight: float
+    model: pin.Model
+    up: np.ndarray
+    height: float
+    feet: tuple[int, ...]
+    inner: np.ndarray
+    joints: tuple[int, ...]  # each foot's Pinocchio joint
+    offsets: tuple[pin.SE3, ...]  # each foot's centre frame in its joint's frame
+
+    @classmethod
+    def of(cls, weight: float, robot, up, inner: np.ndarray, q: np.ndarray, height: float | None = None,
+           margin: float = FOOT_MARGIN) -> GroundPrior:
+        """The prior on ``robot``'s feet: the bodies whose lowest point at ``q`` lies within
+        ``margin`` of the model's height above the lowest body point; the floor at
+        ``height`` along ``up``, or (None) at that lowest point."""
+        up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+        lows = lowest_points(robot.body_poses(q), inner, up) @ up
+        feet = tuple(int(i) for i in np.flatnonzero(lows <= lows.min() + margin * robot.height))
+        frames = [robot.model.frames[robot.frame_ids[i]] for i in feet]
+        return cls(weight, robot.model, up, float(lows.min()) if height is None else float(height), feet, inner,
+                   tuple(int(f.parentJoint) for f in frames), tuple(pin.SE3(f.placement) for f in frames))
+
+    def stiffness(self, A: np.ndarray) -> float:
+        return self.weight * float(np.trace(A[:3, :3])) / 3.0
+
+    def heights(self, data: pin.Data) -> tuple[np.ndarray, np.ndarray]:
+        """The feet's lowest points (n, 3; world) and their heights above the floor (n,)
+        after a forward pass into ``data``."""
+        poses = [data.oMi[j] * M for j, M in zip(self.joints, self.offsets)]
+        low = lowest_points(poses, self.inner[list(self.feet)], self.up)
+        return low, low @ self.up - self.height
+
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
+        """As the protocol; ``data`` must hold the joint Jacobians at ``q``
+        (``pin.computeJointJacobians``, as the static update computes them)."""
+        low, h = self.heights(data)
+        lowest = int(np.argmin(h))
+        active = [(i, min(float(h[i]), 0.0)) for i in range(len(h)) if h[i] < 0.0]
+        if h[lowest] > 0.0:
+            active.append((lowest, float(h[lowest])))
+        energy = 0.0
+        for i, r in active:
+            J = pin.getJointJacobian(self.model, data, self.joints[i], pin.LOCAL_WORLD_ALIGNED)
+            lever = low[i] - data.oMi[self.joints[i]].translation
+            grad = self.up @ J[:3] + np.cross(lever, self.up) @ J[3:]
+            A += k * np.outer(grad, grad)
+            g += k * r * grad
             energy += 0.5 * k * r * r
         return energy
 

@@ -36,7 +36,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
-from .priors import RestPrior, TwistPrior, UprightPrior
+from .priors import GroundPrior, RestPrior, TwistPrior, UprightPrior
 from .reach import ReachSearch
 from .silhouette import visible_bodies
 from .sizes import BodySizes
@@ -89,6 +89,7 @@ class Tracker:
         if twist is not None:
             priors.append(twist)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
+        self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
         self.reach = ReachSearch(robot, self.ecm) if opts.limbs.reach_search else None
         hyp, lim = opts.hypotheses, opts.limbs
@@ -160,6 +161,16 @@ class Tracker:
         it = self.options.iteration
         self.sizes.calibrate(self._e_step_on(views), q, self.options.sizes.size_iterations, it.delta_start,
                              it.delta_final)
+        self._set_ground(q)
+
+    def _set_ground(self, q: np.ndarray) -> None:
+        """The ground prior (``ground``) with its feet and floor (unless ``ground_height``
+        is given) taken at ``q`` with the sizes in use: at q0, again once they are measured."""
+        pri = self.options.priors
+        if self.robot.root != "free" or pri.ground <= 0:
+            return
+        prior = GroundPrior.of(pri.ground, self.robot, pri.up, self.sizes.inner, q, pri.ground_height)
+        self.ecm.priors = [p for p in self.ecm.priors if not isinstance(p, GroundPrior)] + [prior]
 
     def _e_step_on(self, views: Views):
         return lambda q, delta: self.ecm.e_step(q, views.cameras, views.masks, delta)

@@ -1,4 +1,4 @@
-"""Priors of the static update: depth, upright, rest."""
+"""Priors of the static update: depth, upright, rest, twist, ground."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.mstep import BodyFit
-from kms2pin.ecm.priors import DepthPrior, RestPrior, UprightPrior
+from kms2pin.ecm.priors import DepthPrior, GroundPrior, RestPrior, UprightPrior
 from kms2pin.ecm.springs import full_update
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -241,3 +241,106 @@ def test_twist_prior_is_the_gradient_of_its_energy_and_leaves_the_swing_free():
     swung[arm.idx_q : arm.idx_q + 4] = pin.Quaternion(R).coeffs()
     assert energy(swung) == pytest.approx(0.0, abs=1e-20)
     assert TwistPrior.of(1.0, load(DIR / "fullbody.kms", root="free"), np.arange(6, 23)) is None
+
+
+def _ground_energy(robot, q, prior, k):
+    """E = k/2 max(min_i h_i, 0)^2 + k/2 sum_i min(h_i, 0)^2 from the body poses: h_i the
+    lowest height of foot i's ellipsoid along up above the floor, min over the ellipsoid
+    of up . (t + R L s), |s| = 1, which is up . t - |L R^T up|."""
+    poses = robot.body_poses(q)
+    h = np.array([poses[i].translation @ prior.up - np.linalg.norm(prior.inner[i] * (poses[i].rotation.T @ prior.up))
+                  for i in prior.feet]) - prior.height
+    return 0.5 * k * max(h.min(), 0.0) ** 2 + 0.5 * k * float(np.sum(np.minimum(h, 0.0) ** 2)), h
+
+
+def _ground_prior(robot, q, height=None, up=(0.0, 1.0, 0.0)):
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    return GroundPrior.of(1.0, robot, up, inner, q, height)
+
+
+def test_ground_prior_is_the_gradient_of_its_energy():
+    """The ground prior's gradient against finite differences (pin.integrate) of its
+    energy, computed from the body poses, with the lowest foot above the floor (pulled
+    down), with feet below it (pushed up), on a tilted 'up'; its feet are the human's."""
+    human = load(DIR / "human.kms", root="free")
+    model, data, nv = human.model, human.data, human.model.nv
+    up = np.array([0.1, 1.0, 0.2]) / np.linalg.norm([0.1, 1.0, 0.2])
+    prior = _ground_prior(human, human.q_rest, up=up)
+    assert {human.bodies[i] for i in prior.feet} >= {"leftFoot", "rightFoot"}
+    assert not {"leftThigh", "torso", "leftHand"} & {human.bodies[i] for i in prior.feet}
+    k, eps = 0.8, 1e-6
+    rng = np.random.default_rng(1)
+    for lift in (0.05, -0.04, -0.2):
+        q = human.random_configuration(rng, 25)
+        q[:3] = human.q_rest[:3] + lift * up
+        q[3:7] = pin.Quaternion(pin.exp3(rng.uniform(-0.2, 0.2, 3))).coeffs()
+        e, h = _ground_energy(human, q, prior, k)
+        assert (h.min() > 0) == (lift > 0)
+        A, g = np.zeros((nv, nv)), np.zeros(nv)
+        pin.computeJointJacobians(model, data, q)
+        assert prior.add(A, g, q, data, k) == pytest.approx(e, rel=1e-12)
+        fd = [(_ground_energy(human, pin.integrate(model, q, eps * v), prior, k)[0]
+               - _ground_energy(human, pin.integrate(model, q, -eps * v), prior, k)[0]) / (2 * eps) for v in np.eye(nv)]
+        np.testing.assert_allclose(g, fd, atol=1e-7)
+        assert np.abs(g).max() > 1e-3
+        # Gauss-Newton: A = k sum of the active points' gradient outer products, positive semi-definite
+        assert np.linalg.eigvalsh(A).min() > -1e-12 and np.trace(A) > 0
+
+
+def test_ground_prior_pushes_a_foot_below_the_floor_up_and_leaves_one_on_it():
+    """The static update (eq. 2.28) with the bodies' springs holding a pose: a floor 3 cm
+    above the feet pushes them up towards it (the root rises); a floor at the lowest foot
+    point (the default, taken at that pose) adds no force, and the pose stays."""
+    human = load(DIR / "human.kms", root="free")
+    model, data, nv = human.model, human.data, human.model.nv
+    inner = np.array([human.inner(b) for b in human.bodies])
+    q = human.q_rest.copy()
+    q[7:] += np.radians(np.random.default_rng(2).uniform(-5, 5, human.nq - 7))
+    q = pin.normalize(model, q)
+    on = _ground_prior(human, q)
+    _, h_on = _ground_energy(human, q, on, 1.0)
+    assert h_on.min() == pytest.approx(0.0, abs=1e-12)
+    A, g = np.zeros((nv, nv)), np.zeros(nv)
+    pin.computeJointJacobians(model, data, q)
+    assert on.add(A, g, q, data, 1.0) == 0.0
+    assert not g.any() and not A.any()
+    rng = np.random.default_rng(3)
+    H = [(lambda B: B @ B.T + 6 * np.eye(6))(rng.normal(size=(6, 6))) for _ in human.bodies]
+
+    def update(prior):
+        fits = [BodyFit(P, h.copy(), 0.0, 0.0) for P, h in zip(human.body_poses(q), H)]
+        return full_update(human, q.copy(), fits, inner, 0.0, 20, [prior])
+
+    np.testing.assert_allclose(update(on), q, atol=1e-9)
+    below = _ground_prior(human, q, height=on.height + 0.03)
+    q_up = update(below)
+    _, h_after = _ground_energy(human, q_up, below, 1.0)
+    _, h_before = _ground_energy(human, q, below, 1.0)
+    assert h_before.min() == pytest.approx(-0.03, abs=1e-9)
+    assert -0.03 < h_after.min() < -0.003  # pushed up, against the springs
+    assert q_up[1] > q[1] + 0.003  # the root rises (world y is up)
+
+
+def test_tracker_takes_the_floor_at_the_first_pose_with_the_measured_sizes():
+    """``ground``: the tracker's prior has the floor at the feet's lowest point at q0
+    with the sizes in use, taken again once the first frame has measured them; a given
+    ``ground_height`` is kept; off by default and on a fixed root.  (The measured sizes
+    are the prior's own array: later refinements move its feet with them.)"""
+    robot = _robot("lowerbody")
+    cams = _cams(robot, 1)
+    qt = robot.q_rest.copy()
+    masks = render(robot, qt, cams)
+    assert not any(isinstance(p, GroundPrior) for p in Tracker(robot, cams, q0=qt).ecm.priors)
+    tr = Tracker(robot, cams, q0=qt, ground=0.5, scales=np.full((len(robot.bodies), 3), 1.2))
+    tr.calibrate(masks)  # as the first frame's step does
+    (prior,) = [p for p in tr.ecm.priors if isinstance(p, GroundPrior)]
+    assert prior.weight == 0.5 and np.abs(tr.scales - 1.2).max() > 0.01  # the sizes were measured
+    _, h = _ground_energy(robot, qt, prior, 1.0)
+    assert h.min() == pytest.approx(0.0, abs=1e-12)  # at q0 with the measured sizes
+    assert prior.inner is tr.sizes.inner
+    given = Tracker(robot, cams, q0=qt, ground=0.5, ground_height=-2.5)
+    given.step(masks)
+    assert [p.height for p in given.ecm.priors if isinstance(p, GroundPrior)] == [-2.5]
+    fixed = Tracker(load(DIR / "lowerbody.kms", root="spec"), cams, ground=0.5, calibrate_sizes=False)
+    assert not any(isinstance(p, GroundPrior) for p in fixed.ecm.priors)
+
