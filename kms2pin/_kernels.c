@@ -660,6 +660,46 @@ static PyObject *nullspace_system(PyObject *self, PyObject *const *args, Py_ssiz
 #define IDX(b, k) ((Py_ssize_t)(*(double *)((char *)(b).view.buf + (k) * (b).view.strides[0])))
 #define EL(b, k) (*(double *)((char *)(b).view.buf + (k) * (b).view.strides[0]))
 
+/* all_unit(v, starts, lo2, hi2) -> bool: whether every entry of the vector v is finite and
+ * each 4-block v[starts[k]:starts[k]+4] (a quaternion; float64 indices) has a squared norm
+ * in [lo2, hi2].  The callers' usual case, checked in one pass; they explain a False. */
+static PyObject *all_unit(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "all_unit takes 4 arguments");
+        return NULL;
+    }
+    Buf b[2];
+    memset(b, 0, sizeof(b));
+    if (get_buf(args[0], &b[0], 0, "v") < 0 || get_buf(args[1], &b[1], 0, "starts") < 0) {
+        release(b, 2);
+        return NULL;
+    }
+    double lo2 = PyFloat_AsDouble(args[2]), hi2 = PyFloat_AsDouble(args[3]);
+    if (PyErr_Occurred() || b[0].view.ndim != 1 || b[1].view.ndim != 1) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "v and starts must be vectors");
+        release(b, 2);
+        return NULL;
+    }
+    Py_ssize_t n = b[0].view.shape[0], m = b[1].view.shape[0];
+    int ok = 1;
+    for (Py_ssize_t i = 0; i < n && ok; i++) ok = isfinite(EL(b[0], i));
+    for (Py_ssize_t k = 0; k < m && ok; k++) {
+        Py_ssize_t a = IDX(b[1], k);
+        if (a < 0 || a + 4 > n) {
+            PyErr_SetString(PyExc_IndexError, "starts out of range");
+            release(b, 2);
+            return NULL;
+        }
+        double s = 0.0;
+        for (int c = 0; c < 4; c++) s += EL(b[0], a + c) * EL(b[0], a + c);
+        ok = s >= lo2 && s <= hi2;
+    }
+    release(b, 2);
+    return PyBool_FromLong(ok);
+}
+
 /* clip_limits(q, iq, lo, hi): q[iq[k]] clipped into [lo[k], hi[k]] in place (the joint
  * limits of the spec; iq float64 indices). */
 static PyObject *clip_limits(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
@@ -2226,6 +2266,8 @@ static PyMethodDef methods[] = {
      "closure_terms(J, X, moving, kind, end, vec, row, coef, order, r, Jc, H, what): loop closures"},
     {"nullspace_system", (PyCFunction)(void (*)(void))nullspace_system, METH_FASTCALL,
      "nullspace_system(A, g, H, C, N, Hr, gr, lam) -> rank: the Newton system on the constraints' null space"},
+    {"all_unit", (PyCFunction)(void (*)(void))all_unit, METH_FASTCALL,
+     "all_unit(v, starts, lo2, hi2) -> bool: v finite and its 4-blocks at starts of squared norm in [lo2, hi2]"},
     {"clip_limits", (PyCFunction)(void (*)(void))clip_limits, METH_FASTCALL,
      "clip_limits(q, iq, lo, hi): the limited coordinates of q clipped into their limits, in place"},
     {"hold_limits", (PyCFunction)(void (*)(void))hold_limits, METH_FASTCALL,

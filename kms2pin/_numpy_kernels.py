@@ -25,6 +25,7 @@ import pinocchio as pin
 from scipy.linalg import lapack
 
 __all__ = [
+    "all_unit",
     "body_boxes",
     "clip_limits",
     "closure_terms",
@@ -281,6 +282,16 @@ def solve_shifted(H, grad, shift, step) -> bool:
     step[:] = lapack.dpotrs(L, -np.asarray(grad, dtype=float), lower=1)[0]
     return True
 
+
+
+def all_unit(v, starts, lo2, hi2) -> bool:
+    """Whether every entry of ``v`` is finite and each 4-block ``v[starts[k]:starts[k]+4]`` (a
+    quaternion; float indices) has a squared norm in ``[lo2, hi2]``."""
+    if not np.isfinite(v).all():
+        return False
+    b = v[starts.astype(int)[:, None] + np.arange(4)]
+    n2 = np.einsum("ij,ij->i", b, b)
+    return bool(((n2 >= lo2) & (n2 <= hi2)).all())
 
 
 def clip_limits(q, iq, lo, hi) -> None:

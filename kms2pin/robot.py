@@ -25,6 +25,7 @@ from .closures import Closures, project
 from .errors import RobotError, SpecError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
 from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_angles, xyz_rotation
+from .native import kernels
 from .pinmodel import build_model
 from .urdf import (
     ROOT_JOINT,
@@ -43,6 +44,7 @@ ROOTS = ("spec", "free")
 
 #: A free root's quaternion q[3:7] is renormalized when its squared norm is off by more.
 _UNIT_TOL = 1e-12
+_UNIT_LO2, _UNIT_HI2 = 1.0 - _UNIT_TOL, 1.0 + _UNIT_TOL  # squared norms a quaternion passes as unit
 #: Below this norm a free root's quaternion is refused as zero (it has no direction).
 _ZERO_NORM = 1e-12
 #: Largest |R R^T - I| entry :func:`euler_parameters` accepts as a rotation.
@@ -432,15 +434,17 @@ class Robot:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.model.nq,):
             raise RobotError(f"q must have shape ({self.model.nq},) for '{self.system.name}', not {q.shape}")
+        starts, blocks, float_starts = self._quaternions
+        if kernels.all_unit(q, float_starts, _UNIT_LO2, _UNIT_HI2):
+            return q  # the usual case: finite, every quaternion unit
         if not np.isfinite(q).all():
             raise RobotError(self._non_finite_message(q))
-        starts, blocks = self._quaternions
         if not len(starts):
             return q
         b = q[blocks]
         n2 = np.einsum("ij,ij->i", b, b)
         off = np.abs(n2 - 1.0) > _UNIT_TOL
-        if not off.any():  # the usual case: every quaternion unit
+        if not off.any():  # unit after all (a squared norm at the tolerance, summed in another order)
             return q
         q = q.copy()
         for k in np.flatnonzero(off):
@@ -457,12 +461,12 @@ class Robot:
         return q
 
     @cached_property
-    def _quaternions(self) -> tuple[np.ndarray, np.ndarray]:
+    def _quaternions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Where q holds quaternions (a free root's, the spherical joints'): their first
-        indices (k,) and all four indices (k, 4)."""
+        indices (k,), all four indices (k, 4), and the first as floats (the kernels')."""
         starts = np.array([j.idx_q + (3 if j.kind == "free" else 0) for j in self.joints
                            if j.kind in ("free", "spherical")], dtype=int)
-        return starts, starts[:, None] + np.arange(4)[None]
+        return starts, starts[:, None] + np.arange(4)[None], starts.astype(float)
 
     def _non_finite_message(self, q: np.ndarray) -> str:
         k = int(np.flatnonzero(~np.isfinite(q))[0])

@@ -18,6 +18,7 @@ primary pose therefore exerts no force whichever sign it was given with.
 
 from __future__ import annotations
 
+import functools
 import math
 import weakref
 from collections.abc import Mapping, Sequence
@@ -103,9 +104,8 @@ def target_array(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.n
                 f"'{robot.system.name}', not shape {out.shape}"
             )
         mask = np.ones(n, dtype=bool)
-        n2 = np.einsum("ij,ij->i", out[:, 3:], out[:, 3:])
-        if ((n2 >= _UNIT_LO) & (n2 <= _UNIT_HI)).all() and np.isfinite(out[:, :3]).all():
-            return out, mask  # the usual case: every target finite and unit (NaN fails the test)
+        if kernels.all_unit(out.ravel(), _euler_starts(n), _UNIT_LO, _UNIT_HI):
+            return out, mask  # the usual case: every target finite and unit
     finite = np.isfinite(out).all(axis=1)
     norms = np.sqrt(np.einsum("ij,ij->i", out[:, 3:], out[:, 3:]))
     bad = mask & (~finite | (np.abs(norms - 1.0) > 1e-6))
@@ -122,6 +122,13 @@ def target_array(robot: Robot, targets: np.ndarray | Mapping[str, pin.SE3 | np.n
 
 
 _UNIT_LO, _UNIT_HI = (1.0 - 1e-6) ** 2, (1.0 + 1e-6) ** 2  # squared norms within 1e-6 of unit
+
+
+@functools.lru_cache(maxsize=16)
+def _euler_starts(n: int) -> np.ndarray:
+    """Where the Euler parameters of n targets start in their (n, 7) array, raveled (float
+    indices, as the kernels take them)."""
+    return np.arange(3, 7 * n, 7, dtype=float)
 
 
 def stiffness_array(robot: Robot, stiffness: float | np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:

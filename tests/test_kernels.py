@@ -224,6 +224,20 @@ def _solve_shifted(rng, definite=True, shift=0.0):
     return [H, rng.normal(size=7), shift, np.full(7, 3.0)], (3,)
 
 
+def _all_unit(rng, spoil=None):
+    """A vector of 20 with three unit quaternions in it; ``spoil``: a NaN outside them, or one
+    of them scaled off unit."""
+    v = rng.normal(size=20)
+    starts = np.array([1.0, 7.0, 14.0])
+    for a in starts.astype(int):
+        v[a : a + 4] /= np.linalg.norm(v[a : a + 4])
+    if spoil == "nan":
+        v[5] = np.nan
+    elif spoil == "norm":
+        v[7:11] *= 1.0 + 1e-9
+    return [v, starts, 1.0 - 1e-12, 1.0 + 1e-12], ()
+
+
 def _limits(rng, nq=12, m=7):
     """m limited coordinates of a q of nq: indices, bounds, and a q with some outside them."""
     iq = rng.choice(nq, m, replace=False).astype(float)
@@ -289,6 +303,9 @@ def _nullspace_system(rng, m=5, nv=9, dependent=False):
 
 
 CASES: dict[str, Callable] = {
+    "all_unit": _all_unit,
+    "all_unit-nan": lambda rng: _all_unit(rng, "nan"),
+    "all_unit-off-unit": lambda rng: _all_unit(rng, "norm"),
     "clip_limits": _clip_limits,
     "hold_limits": _hold_limits,
     "hold_limits-none-held": lambda rng: _hold_limits(rng, none_held=True),
@@ -381,6 +398,8 @@ def test_c_and_numpy_kernels_agree(case):
         np.testing.assert_array_equal(oc[0], on[0])
     if name == "solve_shifted":
         assert rn is (case != "solve_shifted-indefinite")
+    if name == "all_unit":  # unit quaternions in a finite vector, and each way to spoil them
+        assert rn is (case == "all_unit")
     if name == "nullspace_system":  # the multipliers' forces A^T lam, unique also for repeated rows
         A = args[0]
         _assert_close(A.T @ _lam(impl["c"], args), A.T @ _lam(impl["numpy"], args), "A^T lam")
