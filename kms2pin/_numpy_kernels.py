@@ -283,7 +283,6 @@ def solve_shifted(H, grad, shift, step) -> bool:
     return True
 
 
-
 def all_unit(v, starts, lo2, hi2) -> bool:
     """Whether every entry of ``v`` is finite and each 4-block ``v[starts[k]:starts[k]+4]`` (a
     quaternion; float indices) has a squared norm in ``[lo2, hi2]``."""
@@ -317,6 +316,7 @@ def hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> float:
         H[:, a] = 0.0
         H[a, a] = d
     return float(grad @ grad)
+
 
 # ------------------------------------------------------------------ ECM
 

@@ -141,10 +141,7 @@ class UnionEStep:
             a, b = off[i], off[i + 1]
             u0, v0, u1, v1 = ib[i]
             img = BodyImage(cam, _frozen(BBox, u0=u0, v0=v0, u1=u1, v1=v1), 1, dirs[a:b], dl[i], sp[a:b])
-            if b - a <= self.max_pixels:  # as _subsampled's
-                out[i] = _frozen(BodyView, image=img, y=y[a:b], o=o[a:b], weight=None)
-            else:
-                out[i] = self._subsampled(img, y[a:b], o[a:b], None)
+            out[i] = self._subsampled(img, y[a:b], o[a:b], None)
         return out
 
     def _zeroed(self, c: int, shape: tuple[int, int]) -> np.ndarray:
@@ -162,12 +159,12 @@ class UnionEStep:
     def _subsampled(self, img, y: np.ndarray, o: np.ndarray, weight: np.ndarray | None) -> BodyView:
         """The M-step's view of a full-resolution body image: every ``stride``-th row and
         column when the box holds more than ``max_pixels`` pixels."""
-        if len(y) <= self.max_pixels:
-            return BodyView(img, y, o, weight)
+        if len(y) <= self.max_pixels:  # the usual case, once per body, camera and iteration
+            return _frozen(BodyView, image=img, y=y, o=o, weight=weight)
         rows, cols = img.shape
         stride = max(1, int(np.ceil(np.sqrt(rows * cols / self.max_pixels))))
         if stride == 1:
-            return BodyView(img, y, o, weight)
+            return _frozen(BodyView, image=img, y=y, o=o, weight=weight)
         b = img.box
         rays = world_rays(img.camera)[b.v0 : b.v1 : stride, b.u0 : b.u1 : stride].reshape(-1, 3)
         sub = BodyImage(img.camera, b, stride, rays, img.delta)
