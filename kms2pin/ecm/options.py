@@ -208,6 +208,10 @@ class PriorOptions(_Group):
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
                                 range=Range(0.0), cli=Cli("--twist-prior", "K"))
+    spine_twist: float = option(0.0, "hold the spine's twist (the spherical joints from a free root to the body "
+                                     "twin limbs branch from) about its bones near rest: a trunk turned half a "
+                                     "turn with its arms exchanged casts the same silhouettes (0.05 for people; "
+                                     "0: off)", range=Range(0.0), cli=Cli("--spine-twist", "K"))
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "
                                 "'up'; the feet: the bodies lowest at q0; 0: off)",
@@ -357,12 +361,15 @@ class Preset(Mapping):
 #: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
-#: motion model and the reach search (docs/tracking.md, "Real motion")
-PEOPLE = Preset("people", {"prediction": "learnt", "reach_search": True})
-#: a person walking or standing, seen by one camera: :data:`PEOPLE`, and the upright, rest
-#: and ground priors hold what one view does not fix (the ground: the floor at the lowest
-#: foot of q0, along ``up``; docs/tracking.md, docs/design/tracking-history.md)
-PEOPLE_ONE_CAMERA = Preset("people, one camera", {**PEOPLE, "upright": 0.1, "rest_prior": 0.01, "ground": 0.1})
+#: motion model, the reach search, and the spine and round limbs held near their rest
+#: twist, which no silhouette shows (docs/tracking.md, "Real motion")
+_PEOPLE = {"prediction": "learnt", "reach_search": True}
+PEOPLE = Preset("people", {**_PEOPLE, "spine_twist": 0.05, "twist_prior": 0.05})
+#: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
+#: priors (they made the one-camera walk worse), and the upright, rest and ground priors
+#: hold what one view does not fix (the ground: the floor at the lowest foot of q0, along
+#: ``up``; docs/tracking.md, docs/design/tracking-history.md)
+PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "ground": 0.1})
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -88,6 +88,9 @@ class Tracker:
         twist = TwistPrior.of(opts.priors.twist_prior, robot, joint_dofs) if opts.priors.twist_prior > 0 else None
         if twist is not None:
             priors.append(twist)
+        spine = TwistPrior.spine(opts.priors.spine_twist, robot, joint_dofs) if opts.priors.spine_twist > 0 else None
+        if spine is not None:
+            priors.append(spine)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
