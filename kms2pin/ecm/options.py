@@ -208,10 +208,16 @@ class PriorOptions(_Group):
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
                                 range=Range(0.0), cli=Cli("--twist-prior", "K"))
+    twist_free: float = option(0.0, "the twist (degrees either way of rest) that twist_prior leaves free: a soft "
+                                    "limit past it instead of a pull towards rest (0: the pull)",
+                               range=Range(0.0, 180.0), cli=Cli("--twist-free", "DEG"))
     spine_twist: float = option(0.0, "hold the spine's twist (the spherical joints from a free root to the body "
                                      "twin limbs branch from) about its bones near rest: a trunk turned half a "
                                      "turn with its arms exchanged casts the same silhouettes (0.05 for people; "
                                      "0: off)", range=Range(0.0), cli=Cli("--spine-twist", "K"))
+    spine_free: float = option(0.0, "the twist (degrees either way of rest, each spine joint) that spine_twist "
+                                    "leaves free (0: a pull towards rest)",
+                               range=Range(0.0, 180.0), cli=Cli("--spine-free", "DEG"))
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "
                                 "'up'; the feet: the bodies lowest at q0; 0: off)",
@@ -361,10 +367,10 @@ class Preset(Mapping):
 #: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
-#: motion model, the reach search, and the spine and round limbs held near their rest
-#: twist, which no silhouette shows (docs/tracking.md, "Real motion")
+#: motion model, the reach search, the spine's twist held near rest and the round limbs'
+#: within 90° of it, which no silhouette shows (docs/tracking.md, "Real motion")
 _PEOPLE = {"prediction": "learnt", "reach_search": True}
-PEOPLE = Preset("people", {**_PEOPLE, "spine_twist": 0.05, "twist_prior": 0.05})
+PEOPLE = Preset("people", {**_PEOPLE, "spine_twist": 0.05, "twist_prior": 1.0, "twist_free": 90.0})
 #: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
 #: priors (they made the one-camera walk worse), and the upright, rest and ground priors
 #: hold what one view does not fix (the ground: the floor at the lowest foot of q0, along

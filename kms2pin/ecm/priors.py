@@ -255,7 +255,8 @@ class TwistPrior:
     twist (swing-twist decomposition) is ``θ = 2 atan2(v·a, w)``; energy ½ k Σ θ².  For
     ``R ← R Exp(ω)`` (Pinocchio's spherical joint velocity, local), ``dθ/dω = (w² a +
     w a×v + (v·a) v) / (w² + (v·a)²)``.  Stiffness: ``weight`` times the joints' mean
-    stiffness (as :class:`RestPrior`).
+    stiffness (as :class:`RestPrior`).  With ``free`` > 0 (rad) a twist within ±``free``
+    of rest costs nothing: a soft limit, energy ½ k Σ (|θ| - free)² over the joints past it.
 
     ``joints``: (q index, v index, unit axis a, rest quaternion (x, y, z, w)) per joint.
     """
@@ -263,12 +264,14 @@ class TwistPrior:
     weight: float
     joints: Sequence[tuple[int, int, np.ndarray, np.ndarray]]
     dofs: np.ndarray
+    free: float = 0.0
 
     @classmethod
-    def of(cls, weight: float, robot, dofs: np.ndarray, roundness: float = 0.25) -> TwistPrior | None:
+    def of(cls, weight: float, robot, dofs: np.ndarray, roundness: float = 0.25,
+           free_deg: float = 0.0) -> TwistPrior | None:
         """The prior on ``robot``'s spherical joints whose child's inner ellipsoid is nearly
         a body of revolution about its longest axis (the other two semi-axes within
-        ``roundness`` of each other), or None if there are none."""
+        ``roundness`` of each other), free within ±``free_deg``, or None if there are none."""
         joints = []
         for j in robot.joints:
             if j.kind != "spherical":
@@ -281,10 +284,10 @@ class TwistPrior:
             R_align = robot.model.frames[robot.model.getFrameId(j.spec.child, pin.FrameType.BODY)].placement.rotation
             axis = R_align[:, k]  # the long axis in the joint's axes
             joints.append((j.idx_q, j.idx_v, axis, robot.q_rest[j.idx_q : j.idx_q + 4].copy()))
-        return cls(weight, joints, dofs) if joints else None
+        return cls(weight, joints, dofs, np.radians(free_deg)) if joints else None
 
     @classmethod
-    def spine(cls, weight: float, robot, dofs: np.ndarray) -> TwistPrior | None:
+    def spine(cls, weight: float, robot, dofs: np.ndarray, free_deg: float = 0.0) -> TwistPrior | None:
         """The prior on a free root's spine (:func:`spine_joints`), each joint's twist taken
         about its child's bone (:func:`bone_axis`), or None if there is none.  A trunk
         turned half a turn, its arms exchanged, casts the same silhouettes (an ellipsoid
@@ -295,7 +298,7 @@ class TwistPrior:
             axis = bone_axis(robot, j)
             if axis is not None:
                 joints.append((j.idx_q, j.idx_v, axis, robot.q_rest[j.idx_q : j.idx_q + 4].copy()))
-        return cls(weight, joints, dofs) if joints else None
+        return cls(weight, joints, dofs, np.radians(free_deg)) if joints else None
 
     def stiffness(self, A: np.ndarray) -> float:
         return self.weight * float(np.mean(A[self.dofs, self.dofs]))
@@ -314,6 +317,10 @@ class TwistPrior:
         theta = 2.0 * np.arctan2(t, w)
         den = np.maximum(w * w + t * t, 1e-300)
         J = ((w * w)[:, None] * a + w[:, None] * _cross(a, v) + t[:, None] * v) / den[:, None]
+        if self.free > 0.0:  # the joints past the free range only
+            theta = np.sign(theta) * np.maximum(np.abs(theta) - self.free, 0.0)
+            keep = np.flatnonzero(theta)
+            iv, J, theta = iv[keep], J[keep], theta[keep]
         cols = iv[:, None] + np.arange(3)  # each joint's three velocity indices, distinct
         A[cols[:, :, None], cols[:, None, :]] += k * (J[:, :, None] * J[:, None, :])
         g[cols] += k * J * theta[:, None]

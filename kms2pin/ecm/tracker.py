@@ -85,10 +85,12 @@ class Tracker:
             priors.append(UprightPrior.at(opts.priors.upright, opts.priors.up, self.q[:7]))
         if opts.priors.rest_prior > 0 and joint_dofs.size:
             priors.append(RestPrior(opts.priors.rest_prior, robot.model, robot.q_rest, joint_dofs))
-        twist = TwistPrior.of(opts.priors.twist_prior, robot, joint_dofs) if opts.priors.twist_prior > 0 else None
+        pri = opts.priors
+        twist = TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) \
+            if pri.twist_prior > 0 else None
         if twist is not None:
             priors.append(twist)
-        spine = TwistPrior.spine(opts.priors.spine_twist, robot, joint_dofs) if opts.priors.spine_twist > 0 else None
+        spine = TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None
         if spine is not None:
             priors.append(spine)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)

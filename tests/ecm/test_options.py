@@ -90,10 +90,12 @@ def test_options_and_keywords_give_the_same_track():
     assert Tracker(robot, cams, SEGMENTED_MASKS).options.limbs.limb_search_drop == 0.03
     people = Tracker(robot, cams, PEOPLE)  # one camera's preset is this one's, without the twist priors, and the priors
     assert people.reach is not None and people.options.iteration.prediction == "learnt"
-    assert (people.options.priors.spine_twist, people.options.priors.twist_prior) == (0.05, 0.05)
-    shared = {k: v for k, v in dict(PEOPLE).items() if k not in ("spine_twist", "twist_prior")}
+    pri = people.options.priors
+    assert (pri.spine_twist, pri.twist_prior, pri.twist_free) == (0.05, 1.0, 90.0)
+    twists = ("spine_twist", "twist_prior", "twist_free")
+    shared = {k: v for k, v in dict(PEOPLE).items() if k not in twists}
     assert shared.items() <= dict(PEOPLE_ONE_CAMERA).items()
-    assert "spine_twist" not in dict(PEOPLE_ONE_CAMERA) and "twist_prior" not in dict(PEOPLE_ONE_CAMERA)
+    assert not set(twists) & set(dict(PEOPLE_ONE_CAMERA))
 
 
 def test_overrides_go_over_the_options_and_each_option_is_in_one_group():

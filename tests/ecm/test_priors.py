@@ -405,3 +405,44 @@ def test_spine_twist_prior_tells_a_half_turned_trunk_apart():
     tr = Tracker(human, cams, spine_twist=0.05)
     assert any(isinstance(p, TwistPrior) and p.weight == 0.05 for p in tr.ecm.priors)
 
+
+
+def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
+    """``twist_free``: the round limbs' twist prior leaves a twist within the range free
+    (energy 0 for 80° with a 90° range) and is k/2 (|theta| - range)^2 past it (150°:
+    k/2 (60°)^2), with the gradient of that energy; a bend across the limb costs nothing."""
+    from kms2pin.ecm.priors import TwistPrior
+
+    human = load(DIR / "human.kms", root="free")
+    nv = human.model.nv
+    prior = TwistPrior.of(1.0, human, np.arange(6, nv), free_deg=90.0)
+    arm = next(j for j in human.joints if j.name == "leftUpperArm_shoulder")
+    axis = next(a for iq, _, a, _ in prior.joints if iq == arm.idx_q)  # the arm's long axis, joint axes
+    k = 0.6
+
+    def energy(q):
+        return prior.add(np.zeros((nv, nv)), np.zeros(nv), q, human.data, k)
+
+    def turned(rotvec):
+        q = human.q_rest.copy()
+        x = q[arm.idx_q : arm.idx_q + 4]
+        R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.asarray(rotvec, dtype=float))
+        q[arm.idx_q : arm.idx_q + 4] = pin.Quaternion(R).coeffs()
+        return q
+
+    assert energy(human.q_rest) == 0.0
+    assert energy(turned(np.radians(80) * axis)) == 0.0
+    assert energy(turned(-np.radians(150) * axis)) == pytest.approx(0.5 * k * np.radians(60) ** 2, rel=1e-9)
+    across = np.cross(axis, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    assert energy(turned(2.5 * across)) == pytest.approx(0.0, abs=1e-20)
+    q = turned(np.radians(140) * axis + 0.3 * across)
+    A, g = np.zeros((nv, nv)), np.zeros(nv)
+    assert prior.add(A, g, q, human.data, k) > 0
+    eps = 1e-6
+    fd = [(energy(pin.integrate(human.model, q, eps * e)) - energy(pin.integrate(human.model, q, -eps * e))) / (2 * eps)
+          for e in np.eye(nv)]
+    np.testing.assert_allclose(g, fd, atol=1e-6)
+    assert set(np.flatnonzero(g)) <= set(range(arm.idx_v, arm.idx_v + 3))  # the other limbs are within range
+    tr = Tracker(human, _cams(human), twist_prior=1.0, twist_free=90.0, spine_twist=1.0, spine_free=30.0)
+    assert sorted(p.free for p in tr.ecm.priors if isinstance(p, TwistPrior)) == pytest.approx(np.radians([30, 90]))
