@@ -147,12 +147,12 @@ def test_two_tracks_into_one_folder_do_not_mix(masks, tmp_path):
     assert main(["evaluate", str(out), str(masks / "truth.csv")]) == 0
 
 
-LONG = 400
+LONG = 2000
 
 
 @pytest.fixture(scope="module")
 def long_masks(masks, tmp_path_factory) -> Path:
-    """The 40 frames played forward and back to 400 (hard links): a run long enough that
+    """The 40 frames played forward and back to 2000 (hard links): a run long enough that
     the signal always lands mid-run, however busy the machine is."""
     d = tmp_path_factory.mktemp("long_masks")
     shutil.copy(masks / "cameras.json", d)
