@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from .limbs import twin_name
+
 __all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior"]
 
 
@@ -195,8 +197,8 @@ _NEXT, _LAST = [1, 2, 0], [2, 0, 1]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products, without its overhead
-    (15 us a call, twice per static update)."""
+    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products and rounding, without its
+    per-call overhead, which dominates for a few joints."""
     return a[:, _NEXT] * b[:, _LAST] - a[:, _LAST] * b[:, _NEXT]
 
 
@@ -205,8 +207,6 @@ def spine_joints(robot) -> list:
     joints (``left*`` / ``right*``, :func:`~kms2pin.ecm.limbs.twin_name`) both leave:
     a spine from the pelvis to the chest the arms hang from.  Empty for a fixed root, or
     when the twins branch from the root's body itself."""
-    from .limbs import twin_name
-
     if robot.root != "free":
         return []
     by_child = {j.child: j for j in robot.system.joints if j.child is not None}
@@ -242,6 +242,11 @@ def bone_axis(robot, joint) -> np.ndarray | None:
         return None
     R_align = robot.model.frames[robot.model.getFrameId(spec.child, pin.FrameType.BODY)].placement.rotation
     return R_align @ (d / n)
+
+
+def _twist_entry(robot, joint, axis: np.ndarray) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """A :class:`TwistPrior` joint: its q and v indices, ``axis`` and its rest quaternion."""
+    return joint.idx_q, joint.idx_v, axis, robot.q_rest[joint.idx_q : joint.idx_q + 4].copy()
 
 
 @dataclass(frozen=True)
@@ -282,8 +287,7 @@ class TwistPrior:
             if other.max() > (1.0 + roundness) * other.min() or L[k] < 1.5 * other.max():
                 continue
             R_align = robot.model.frames[robot.model.getFrameId(j.spec.child, pin.FrameType.BODY)].placement.rotation
-            axis = R_align[:, k]  # the long axis in the joint's axes
-            joints.append((j.idx_q, j.idx_v, axis, robot.q_rest[j.idx_q : j.idx_q + 4].copy()))
+            joints.append(_twist_entry(robot, j, R_align[:, k]))  # the long axis in the joint's axes
         return cls(weight, joints, dofs, np.radians(free_deg)) if joints else None
 
     @classmethod
@@ -293,11 +297,7 @@ class TwistPrior:
         turned half a turn, its arms exchanged, casts the same silhouettes (an ellipsoid
         is symmetric under a half turn, the arms are twins): only a prior tells the two
         apart (docs/design/tracking-history.md)."""
-        joints = []
-        for j in spine_joints(robot):
-            axis = bone_axis(robot, j)
-            if axis is not None:
-                joints.append((j.idx_q, j.idx_v, axis, robot.q_rest[j.idx_q : j.idx_q + 4].copy()))
+        joints = [_twist_entry(robot, j, a) for j in spine_joints(robot) if (a := bone_axis(robot, j)) is not None]
         return cls(weight, joints, dofs, np.radians(free_deg)) if joints else None
 
     def stiffness(self, A: np.ndarray) -> float:

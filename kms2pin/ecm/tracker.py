@@ -81,18 +81,15 @@ class Tracker:
         free = robot.root == "free"
         joint_dofs = np.arange(6 if free else 0, robot.model.nv)  # every dof but a free root's six
         priors: list = []
-        if free and opts.priors.upright > 0:
-            priors.append(UprightPrior.at(opts.priors.upright, opts.priors.up, self.q[:7]))
-        if opts.priors.rest_prior > 0 and joint_dofs.size:
-            priors.append(RestPrior(opts.priors.rest_prior, robot.model, robot.q_rest, joint_dofs))
         pri = opts.priors
-        twist = TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) \
-            if pri.twist_prior > 0 else None
-        if twist is not None:
-            priors.append(twist)
-        spine = TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None
-        if spine is not None:
-            priors.append(spine)
+        if free and pri.upright > 0:
+            priors.append(UprightPrior.at(pri.upright, pri.up, self.q[:7]))
+        if pri.rest_prior > 0 and joint_dofs.size:
+            priors.append(RestPrior(pri.rest_prior, robot.model, robot.q_rest, joint_dofs))
+        twists = (TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) if pri.twist_prior > 0
+                  else None,
+                  TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)
+        priors += [p for p in twists if p is not None]  # None: no joint to hold
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)

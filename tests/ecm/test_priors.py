@@ -204,6 +204,33 @@ def test_upright_prior_tracks_a_turn_that_one_camera_loses():
     assert np.degrees(np.linalg.norm(pin.log3(Ra.T @ Rb))) < 10.0
 
 
+def _turned(robot, joint, rotvec):
+    """The rest pose with spherical ``joint`` turned by ``rotvec`` (rad, its own axes: R Exp(r))."""
+    q = robot.q_rest.copy()
+    x = q[joint.idx_q : joint.idx_q + 4]
+    R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.asarray(rotvec, dtype=float))
+    q[joint.idx_q : joint.idx_q + 4] = pin.Quaternion(R).coeffs()
+    return q
+
+
+def _energy_of(prior, robot, k):
+    """``q -> the prior's energy at q`` (its Newton terms thrown away)."""
+    nv = robot.model.nv
+    return lambda q: prior.add(np.zeros((nv, nv)), np.zeros(nv), q, robot.data, k)
+
+
+def _assert_gradient(prior, robot, q, k):
+    """The prior's gradient at ``q`` against central differences of its energy (steps by
+    pin.integrate); returns the gradient."""
+    nv, energy, eps = robot.model.nv, _energy_of(prior, robot, k), 1e-6
+    g = np.zeros(nv)
+    prior.add(np.zeros((nv, nv)), g, q, robot.data, k)
+    fd = [(energy(pin.integrate(robot.model, q, eps * e)) - energy(pin.integrate(robot.model, q, -eps * e))) / (2 * eps)
+          for e in np.eye(nv)]
+    np.testing.assert_allclose(g, fd, atol=1e-6)
+    return g
+
+
 def test_twist_prior_is_the_gradient_of_its_energy_and_leaves_the_swing_free():
     """The twist prior on the human's round limbs (upper arms, thighs): its gradient is
     that of E = k/2 sum theta^2 (finite differences with pin.integrate), theta the twist
@@ -219,27 +246,13 @@ def test_twist_prior_is_the_gradient_of_its_energy_and_leaves_the_swing_free():
     assert {"leftUpperArm_shoulder", "rightUpperArm_shoulder", "leftThigh_hip", "rightThigh_hip"} <= names
     assert "torso_waist" not in names  # a wide trunk shows its twist
     k = 0.8
-
-    def energy(q):
-        A, g = np.zeros((nv, nv)), np.zeros(nv)
-        return prior.add(A, g, q, human.data, k)
-
-    rng = np.random.default_rng(2)
-    q = human.random_configuration(rng, 60)
-    A, g = np.zeros((nv, nv)), np.zeros(nv)
-    e0 = prior.add(A, g, q, human.data, k)
-    assert e0 > 0
-    eps = 1e-6
-    fd = [(energy(pin.integrate(human.model, q, eps * e)) - energy(pin.integrate(human.model, q, -eps * e))) / (2 * eps)
-          for e in np.eye(nv)]
-    np.testing.assert_allclose(g, fd, atol=1e-6)
+    energy = _energy_of(prior, human, k)
+    q = human.random_configuration(np.random.default_rng(2), 60)
+    assert energy(q) > 0
+    _assert_gradient(prior, human, q, k)
     # a swing of the left upper arm about the shoulder's axis (across the arm) has no twist
     arm = next(j for j in human.joints if j.name == "leftUpperArm_shoulder")
-    swung = human.q_rest.copy()
-    x = human.q_rest[arm.idx_q : arm.idx_q + 4]
-    R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.array([0.7, 0.0, 0.0]))
-    swung[arm.idx_q : arm.idx_q + 4] = pin.Quaternion(R).coeffs()
-    assert energy(swung) == pytest.approx(0.0, abs=1e-20)
+    assert energy(_turned(human, arm, [0.7, 0.0, 0.0])) == pytest.approx(0.0, abs=1e-20)
     assert TwistPrior.of(1.0, load(DIR / "fullbody.kms", root="free"), np.arange(6, 23)) is None
 
 
@@ -345,7 +358,6 @@ def test_tracker_takes_the_floor_at_the_first_pose_with_the_measured_sizes():
     assert not any(isinstance(p, GroundPrior) for p in fixed.ecm.priors)
 
 
-
 def test_spine_twist_prior_tells_a_half_turned_trunk_apart():
     """A trunk turned half a turn about its bone casts the silhouettes of the upright one
     (an ellipsoid is symmetric under a half turn; at rest the arms are twins, so they trade
@@ -364,19 +376,12 @@ def test_spine_twist_prior_tells_a_half_turned_trunk_apart():
     # the torso's bvecs: the waist below, the neck above, the shoulders level and symmetric
     R_align = human.model.frames[human.model.getFrameId("torso", pin.FrameType.BODY)].placement.rotation
     np.testing.assert_allclose(R_align.T @ bone_axis(human, waist), [0.0, 1.0, 0.0], atol=1e-12)
-    nv = human.model.nv
-    prior = TwistPrior.spine(1.0, human, np.arange(6, nv))
+    prior = TwistPrior.spine(1.0, human, np.arange(6, human.model.nv))
     k = 0.7
-
-    def energy(q):
-        return prior.add(np.zeros((nv, nv)), np.zeros(nv), q, human.data, k)
+    energy = _energy_of(prior, human, k)
 
     def turned(rotvec):
-        q = human.q_rest.copy()
-        x = q[waist.idx_q : waist.idx_q + 4]
-        R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.asarray(rotvec, dtype=float))
-        q[waist.idx_q : waist.idx_q + 4] = pin.Quaternion(R).coeffs()
-        return q
+        return _turned(human, waist, rotvec)
 
     axis = bone_axis(human, waist)
     half = turned(np.pi * axis)
@@ -392,19 +397,11 @@ def test_spine_twist_prior_tells_a_half_turned_trunk_apart():
     assert energy(turned(0.3 * axis)) == pytest.approx(0.5 * k * 0.09, rel=1e-9)
     across = np.cross(axis, [0.0, 0.0, 1.0])
     assert energy(turned(0.4 * across / np.linalg.norm(across))) == pytest.approx(0.0, abs=1e-20)
-    rng = np.random.default_rng(5)
-    q = human.random_configuration(rng, 60)
-    g = np.zeros(nv)
-    prior.add(np.zeros((nv, nv)), g, q, human.data, k)
-    eps = 1e-6
-    fd = [(energy(pin.integrate(human.model, q, eps * e)) - energy(pin.integrate(human.model, q, -eps * e))) / (2 * eps)
-          for e in np.eye(nv)]
-    np.testing.assert_allclose(g, fd, atol=1e-6)
+    g = _assert_gradient(prior, human, human.random_configuration(np.random.default_rng(5), 60), k)
     assert np.flatnonzero(g).min() >= waist.idx_v and np.flatnonzero(g).max() < waist.idx_v + 3
     # the tracker takes it as an option
     tr = Tracker(human, cams, spine_twist=0.05)
     assert any(isinstance(p, TwistPrior) and p.weight == 0.05 for p in tr.ecm.priors)
-
 
 
 def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
@@ -414,21 +411,14 @@ def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
     from kms2pin.ecm.priors import TwistPrior
 
     human = load(DIR / "human.kms", root="free")
-    nv = human.model.nv
-    prior = TwistPrior.of(1.0, human, np.arange(6, nv), free_deg=90.0)
+    prior = TwistPrior.of(1.0, human, np.arange(6, human.model.nv), free_deg=90.0)
     arm = next(j for j in human.joints if j.name == "leftUpperArm_shoulder")
     axis = next(a for iq, _, a, _ in prior.joints if iq == arm.idx_q)  # the arm's long axis, joint axes
     k = 0.6
-
-    def energy(q):
-        return prior.add(np.zeros((nv, nv)), np.zeros(nv), q, human.data, k)
+    energy = _energy_of(prior, human, k)
 
     def turned(rotvec):
-        q = human.q_rest.copy()
-        x = q[arm.idx_q : arm.idx_q + 4]
-        R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix() @ pin.exp3(np.asarray(rotvec, dtype=float))
-        q[arm.idx_q : arm.idx_q + 4] = pin.Quaternion(R).coeffs()
-        return q
+        return _turned(human, arm, rotvec)
 
     assert energy(human.q_rest) == 0.0
     assert energy(turned(np.radians(80) * axis)) == 0.0
@@ -437,12 +427,8 @@ def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
     across /= np.linalg.norm(across)
     assert energy(turned(2.5 * across)) == pytest.approx(0.0, abs=1e-20)
     q = turned(np.radians(140) * axis + 0.3 * across)
-    A, g = np.zeros((nv, nv)), np.zeros(nv)
-    assert prior.add(A, g, q, human.data, k) > 0
-    eps = 1e-6
-    fd = [(energy(pin.integrate(human.model, q, eps * e)) - energy(pin.integrate(human.model, q, -eps * e))) / (2 * eps)
-          for e in np.eye(nv)]
-    np.testing.assert_allclose(g, fd, atol=1e-6)
+    assert energy(q) > 0
+    g = _assert_gradient(prior, human, q, k)
     assert set(np.flatnonzero(g)) <= set(range(arm.idx_v, arm.idx_v + 3))  # the other limbs are within range
     tr = Tracker(human, _cams(human), twist_prior=1.0, twist_free=90.0, spine_twist=1.0, spine_free=30.0)
     assert sorted(p.free for p in tr.ecm.priors if isinstance(p, TwistPrior)) == pytest.approx(np.radians([30, 90]))
