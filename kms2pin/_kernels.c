@@ -2235,6 +2235,89 @@ static PyObject *body_boxes(PyObject *self, PyObject *const *args, Py_ssize_t na
     Py_RETURN_NONE;
 }
 
+/* twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> energy
+ * The tracker's twist prior (kms2pin.ecm.priors.TwistPrior) added to the Newton system in
+ * place.  Per spherical joint (iq, iv its first q and v indices, float64): the rotation
+ * relative to rest D = conj(rest) x (v, w) (sign chosen so w >= 0, normalized), its twist
+ * theta = 2 atan2(v.a, w) about the unit axis a, past +-free when free > 0; with
+ * J = dtheta/domega = (w^2 a + w a x v + (v.a) v) / (w^2 + (v.a)^2):
+ * A += k J J^T, g += k J theta; returns 1/2 k sum theta^2.  The NumPy twin's operations in
+ * its order; its einsum and arctan2 round differently in the last bit. */
+static PyObject *twist_prior(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "twist_prior(q, iq, iv, axes, rest, free, k, A, g)");
+        return NULL;
+    }
+    double free_ = PyFloat_AsDouble(args[5]), k = PyFloat_AsDouble(args[6]);
+    if (PyErr_Occurred()) return NULL;
+    Buf b[9];
+    memset(b, 0, sizeof(b));
+    static const char *names[9] = {"q", "iq", "iv", "axes", "rest", "", "", "A", "g"};
+    for (int i = 0; i < 9; i++) {
+        if (i == 5 || i == 6) continue;
+        if (get_buf(args[i], &b[i], i >= 7, names[i]) < 0) {
+            release(b, 9);
+            return NULL;
+        }
+    }
+    Py_ssize_t n = b[1].view.ndim == 1 ? b[1].view.shape[0] : -1;
+    Py_ssize_t nv = b[8].view.ndim == 1 ? b[8].view.shape[0] : -1;
+    if (b[0].view.ndim != 1 || n < 0 || nv < 0 || b[2].view.ndim != 1 || b[2].view.shape[0] != n ||
+        check_2d(&b[3], n, 3, "axes") || check_2d(&b[4], n, 4, "rest") || check_2d(&b[7], nv, nv, "A")) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "q, iq, iv and g must be vectors, iq and iv of one length");
+        release(b, 9);
+        return NULL;
+    }
+    Py_ssize_t nq = b[0].view.shape[0];
+    for (Py_ssize_t j = 0; j < n; j++) {
+        Py_ssize_t i = IDX(b[1], j), c = IDX(b[2], j);
+        if (i < 0 || i + 4 > nq || c < 0 || c + 3 > nv) {
+            PyErr_SetString(PyExc_IndexError, "iq or iv out of range");
+            release(b, 9);
+            return NULL;
+        }
+    }
+    double sum = 0.0;
+    for (Py_ssize_t j = 0; j < n; j++) {
+        Py_ssize_t i = IDX(b[1], j), c = IDX(b[2], j);
+        double xv[3] = {EL(b[0], i), EL(b[0], i + 1), EL(b[0], i + 2)}, xw = EL(b[0], i + 3);
+        double rv[3] = {AT(b[4], j, 0), AT(b[4], j, 1), AT(b[4], j, 2)}, rw = AT(b[4], j, 3);
+        double a[3] = {AT(b[3], j, 0), AT(b[3], j, 1), AT(b[3], j, 2)};
+        double rxx[3], v[3], axv[3], J[3];
+        cross(rv, xv, rxx);
+        double w = rw * xw + dot3(rv, xv);
+        for (int d = 0; d < 3; d++) v[d] = rw * xv[d] - xw * rv[d] - rxx[d];
+        if (w < 0.0) {
+            w = -w;
+            for (int d = 0; d < 3; d++) v[d] = -v[d];
+        }
+        double norm = sqrt(w * w + dot3(v, v));
+        w = w / norm;
+        for (int d = 0; d < 3; d++) v[d] = v[d] / norm;
+        double t = dot3(v, a);
+        double theta = 2.0 * atan2(t, w);
+        double den = fmax(w * w + t * t, 1e-300);
+        cross(a, v, axv);
+        for (int d = 0; d < 3; d++) J[d] = ((w * w) * a[d] + w * axv[d] + t * v[d]) / den;
+        if (free_ > 0.0) {
+            if (theta == theta) {
+                double m = fmax(fabs(theta) - free_, 0.0);
+                theta = theta > 0.0 ? m : (theta < 0.0 ? -m : 0.0);
+            }
+            if (theta == 0.0) continue;
+        }
+        for (int r = 0; r < 3; r++) {
+            for (int d = 0; d < 3; d++) AT(b[7], c + r, c + d) += k * (J[r] * J[d]);
+            EL(b[8], c + r) += k * J[r] * theta;
+        }
+        sum += theta * theta;
+    }
+    release(b, 9);
+    return PyFloat_FromDouble(0.5 * k * sum);
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
@@ -2274,6 +2357,8 @@ static PyMethodDef methods[] = {
      "hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> |grad|^2: joints held at their limits"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
+    {"twist_prior", (PyCFunction)(void (*)(void))twist_prior, METH_FASTCALL,
+     "twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> energy: the twist prior added to A and g"},
     {NULL, NULL, 0, NULL},
 };
 

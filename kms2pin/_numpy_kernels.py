@@ -44,6 +44,7 @@ __all__ = [
     "silhouette_fit",
     "silhouette_union",
     "solve_shifted",
+    "twist_prior",
 ]
 
 #: ``|h|`` beyond which the logistic edge counts as saturated (σ(-7) < 1e-3); the C file's H_CUT.
@@ -246,6 +247,45 @@ def pose_springs(J, X, T, K, S, A, g) -> float:
     A[:] = Ji.reshape(6 * n, nv).T @ KJ
     g[:] = KJ.T @ e.ravel()
     return 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
+
+
+_NEXT, _LAST = [1, 2, 0], [2, 0, 1]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products and rounding, without its
+    per-call overhead, which dominates for a few joints."""
+    return a[:, _NEXT] * b[:, _LAST] - a[:, _LAST] * b[:, _NEXT]
+
+
+def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:
+    """The twist prior (:class:`kms2pin.ecm.priors.TwistPrior`) added to the Newton system
+    in place: for each spherical joint (``iq``, ``iv`` its first q and v indices, float),
+    ``Δ = conj(rest) ⊗ x = (v, w)`` (x the joint's quaternion, (x, y, z, w)), the twist
+    ``θ = 2 atan2(v·a, w)`` about unit ``axes`` a (past ``free`` rad when ``free`` > 0),
+    ``A += k J Jᵀ`` and ``g += k J θ`` with ``J = dθ/dω``.  Returns ``½ k Σ θ²``."""
+    iq, iv = iq.astype(int), iv.astype(int)
+    a = axes
+    x = q[iq[:, None] + np.arange(4)]  # (n, 4) x y z w
+    rv, rw, xv, xw = rest[:, :3], rest[:, 3], x[:, :3], x[:, 3]
+    w = rw * xw + np.einsum("ij,ij->i", rv, xv)  # conj(rest) * x
+    v = rw[:, None] * xv - xw[:, None] * rv - _cross(rv, xv)
+    flip = w < 0.0  # the same rotation: the twist in (-pi, pi]
+    w, v = np.where(flip, -w, w), np.where(flip[:, None], -v, v)
+    norm = np.sqrt(w * w + np.einsum("ij,ij->i", v, v))  # q need not be exactly unit
+    w, v = w / norm, v / norm[:, None]
+    t = np.einsum("ij,ij->i", v, a)
+    theta = 2.0 * np.arctan2(t, w)
+    den = np.maximum(w * w + t * t, 1e-300)
+    J = ((w * w)[:, None] * a + w[:, None] * _cross(a, v) + t[:, None] * v) / den[:, None]
+    if free > 0.0:  # the joints past the free range only
+        theta = np.sign(theta) * np.maximum(np.abs(theta) - free, 0.0)
+        keep = np.flatnonzero(theta)
+        iv, J, theta = iv[keep], J[keep], theta[keep]
+    cols = iv[:, None] + np.arange(3)  # each joint's three velocity indices, distinct
+    A[cols[:, :, None], cols[:, None, :]] += k * (J[:, :, None] * J[:, None, :])
+    g[cols] += k * J * theta[:, None]
+    return 0.5 * k * float(theta @ theta)
 
 
 def _quat_mul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:

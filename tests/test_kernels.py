@@ -207,6 +207,18 @@ def _pose_springs(rng):
     return [rng.normal(size=(6, nv)), X, T, K, S, np.empty((nv, nv)), np.empty(nv)], (5, 6)
 
 
+def _twist_prior(rng, free=0.0):
+    """Five spherical joints in a q of 30 (their quaternions off unit, some w < 0), onto a
+    Newton system of 20 columns that already holds values."""
+    n, nq, nv = 5, 30, 20
+    iq, iv = np.array([0.0, 5.0, 11.0, 17.0, 24.0]), np.array([0.0, 4.0, 8.0, 12.0, 16.0])
+    q = rng.normal(size=nq)
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    M = rng.normal(size=(nv, nv))
+    return [q, iq, iv, axes, _quats(rng, n), free, 0.7, M @ M.T, rng.normal(size=nv)], (7, 8)
+
+
 def _body_boxes(rng):
     n = 40
     K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
@@ -343,6 +355,8 @@ CASES: dict[str, Callable] = {
     "silhouette_counts": _silhouette_counts,
     "silhouette_counts-uint8": lambda rng: _silhouette_counts(rng, "uint8"),
     "solve_shifted": _solve_shifted,
+    "twist_prior": _twist_prior,
+    "twist_prior-free": lambda rng: _twist_prior(rng, free=1.0),
     "solve_shifted-indefinite": lambda rng: _solve_shifted(rng, definite=False),
     "solve_shifted-shifted": lambda rng: _solve_shifted(rng, definite=False, shift=20.0),
 }

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from ..native import kernels
 from .limbs import twin_name
 
 __all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior"]
@@ -193,15 +194,6 @@ class RestPrior:
         return 0.5 * k * float(d @ d)
 
 
-_NEXT, _LAST = [1, 2, 0], [2, 0, 1]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products and rounding, without its
-    per-call overhead, which dominates for a few joints."""
-    return a[:, _NEXT] * b[:, _LAST] - a[:, _LAST] * b[:, _NEXT]
-
-
 def spine_joints(robot) -> list:
     """The spherical joints on the way from a free root's body to each body that twin
     joints (``left*`` / ``right*``, :func:`~kms2pin.ecm.limbs.twin_name`) both leave:
@@ -304,33 +296,13 @@ class TwistPrior:
         return self.weight * float(np.mean(A[self.dofs, self.dofs]))
 
     def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
-        iq, iv, a, rest = self._arrays
-        x = q[iq[:, None] + np.arange(4)]  # (n, 4) x y z w
-        rv, rw, xv, xw = rest[:, :3], rest[:, 3], x[:, :3], x[:, 3]
-        w = rw * xw + np.einsum("ij,ij->i", rv, xv)  # conj(rest) * x
-        v = rw[:, None] * xv - xw[:, None] * rv - _cross(rv, xv)
-        flip = w < 0.0  # the same rotation: the twist in (-pi, pi]
-        w, v = np.where(flip, -w, w), np.where(flip[:, None], -v, v)
-        norm = np.sqrt(w * w + np.einsum("ij,ij->i", v, v))  # q need not be exactly unit
-        w, v = w / norm, v / norm[:, None]
-        t = np.einsum("ij,ij->i", v, a)
-        theta = 2.0 * np.arctan2(t, w)
-        den = np.maximum(w * w + t * t, 1e-300)
-        J = ((w * w)[:, None] * a + w[:, None] * _cross(a, v) + t[:, None] * v) / den[:, None]
-        if self.free > 0.0:  # the joints past the free range only
-            theta = np.sign(theta) * np.maximum(np.abs(theta) - self.free, 0.0)
-            keep = np.flatnonzero(theta)
-            iv, J, theta = iv[keep], J[keep], theta[keep]
-        cols = iv[:, None] + np.arange(3)  # each joint's three velocity indices, distinct
-        A[cols[:, :, None], cols[:, None, :]] += k * (J[:, :, None] * J[:, None, :])
-        g[cols] += k * J * theta[:, None]
-        return 0.5 * k * float(theta @ theta)
+        return kernels.twist_prior(q, *self._arrays, self.free, k, A, g)
 
     @property
     def _arrays(self):
         arrays = self.__dict__.get("_cached")
         if arrays is None:
-            arrays = (np.array([j[0] for j in self.joints]), np.array([j[1] for j in self.joints]),
-                      np.array([j[2] for j in self.joints]), np.array([j[3] for j in self.joints]))
+            arrays = (np.array([j[0] for j in self.joints], dtype=float), np.array([j[1] for j in self.joints], dtype=float),
+                      np.array([j[2] for j in self.joints], dtype=float), np.array([j[3] for j in self.joints], dtype=float))
             object.__setattr__(self, "_cached", arrays)
         return arrays
