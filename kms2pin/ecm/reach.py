@@ -16,7 +16,8 @@ of :data:`DIRECTIONS` directions spread over the sphere, the rest of its rotatio
 a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  Each choice is
 scored by the silhouette fit (IoU) with the rest of the body held, rendering only the
 moved bodies anew (a coarse score: a trial 20 degrees off a thin limb scores as one far
-off); the :data:`REFINED` best are screened by a few ECM iterations on the masks
+off); unless the body's pose as it is scores best (the search then found nothing),
+the :data:`REFINED` best are screened by a few ECM iterations on the masks
 binned 2x2 (as the limb search's), the :data:`FINAL` best of those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN` both the frame's and that of the
 frame's pose run on by the same ECM (more iterations gain a little by themselves).  A body
 whose search found nothing rests for :data:`REST_FRAMES` frames.
@@ -296,7 +297,11 @@ class ReachSearch:
             i = todo.pop(0)
             tried.add(i)
             r = self.reaches[i]
-            (qc, fc), base = self._refined(q, fit, self._starts(q, r, views), views, binned, coarse, timings, base)
+            starts = self._starts(q, r, views)
+            if starts[0] is q:  # no trial scores above the pose itself: nothing to refine
+                self._failed[i] = self._searches
+                continue
+            (qc, fc), base = self._refined(q, fit, starts, views, binned, coarse, timings, base)
             if qc is q:
                 self._failed[i] = self._searches
                 continue

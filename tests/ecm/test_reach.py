@@ -81,3 +81,22 @@ def test_the_reach_search_is_an_option_of_the_tracker_and_flags_its_moves():
     res = tr.step(masks)
     assert any(f.startswith("pointed '") and f.endswith("' at the masks") for f in res.flags)
     assert _arm_error_cm(robot, res.q, qt) < 2.0
+
+
+def test_a_body_no_trial_of_which_beats_its_pose_costs_no_ecm_run(monkeypatch):
+    """The limb is reported lost while it fits (the truth): every re-aimed trial scores
+    below the pose, so none is screened or refined, and the body rests."""
+    robot, qt, _, cams, masks = _arm_scene(True)
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False)
+    reach = ReachSearch(robot, tr.ecm)
+    views = Views.of(cams, masks)
+    arm = robot.index("leftUpperArm")
+    monkeypatch.setattr(reach, "lost", lambda q, v: [arm])
+    starts = reach._starts(qt, reach.reaches[arm], views)
+    assert starts[0] is qt and len(starts) > 1  # the truth ranks first of the trials
+    runs = []
+    monkeypatch.setattr(tr.ecm, "run", lambda *a, **k: runs.append(a) or (a[0], None, None))
+    binned = views.binned({c: c.binned(2) for c in cams})
+    q, fit, moves = reach.search(qt, tr.fit(qt, masks), views, binned, None, new_timings())
+    assert runs == [] and moves == [] and q is qt
+    assert reach._failed == {arm: 1}  # it rests for the next REST_FRAMES frames
