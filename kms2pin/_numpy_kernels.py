@@ -249,15 +249,6 @@ def pose_springs(J, X, T, K, S, A, g) -> float:
     return 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
 
 
-_NEXT, _LAST = [1, 2, 0], [2, 0, 1]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products and rounding, without its
-    per-call overhead, which dominates for a few joints."""
-    return a[:, _NEXT] * b[:, _LAST] - a[:, _LAST] * b[:, _NEXT]
-
-
 def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:
     """The twist prior (:class:`kms2pin.ecm.priors.TwistPrior`) added to the Newton system
     in place: for each spherical joint (``iq``, ``iv`` its first q and v indices, float),
@@ -269,7 +260,7 @@ def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:
     x = q[iq[:, None] + np.arange(4)]  # (n, 4) x y z w
     rv, rw, xv, xw = rest[:, :3], rest[:, 3], x[:, :3], x[:, 3]
     w = rw * xw + np.einsum("ij,ij->i", rv, xv)  # conj(rest) * x
-    v = rw[:, None] * xv - xw[:, None] * rv - _cross(rv, xv)
+    v = rw[:, None] * xv - xw[:, None] * rv - np.cross(rv, xv)
     flip = w < 0.0  # the same rotation: the twist in (-pi, pi]
     w, v = np.where(flip, -w, w), np.where(flip[:, None], -v, v)
     norm = np.sqrt(w * w + np.einsum("ij,ij->i", v, v))  # q need not be exactly unit
@@ -277,7 +268,7 @@ def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:
     t = np.einsum("ij,ij->i", v, a)
     theta = 2.0 * np.arctan2(t, w)
     den = np.maximum(w * w + t * t, 1e-300)
-    J = ((w * w)[:, None] * a + w[:, None] * _cross(a, v) + t[:, None] * v) / den[:, None]
+    J = ((w * w)[:, None] * a + w[:, None] * np.cross(a, v) + t[:, None] * v) / den[:, None]
     if free > 0.0:  # the joints past the free range only
         theta = np.sign(theta) * np.maximum(np.abs(theta) - free, 0.0)
         keep = np.flatnonzero(theta)

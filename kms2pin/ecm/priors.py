@@ -262,6 +262,10 @@ class TwistPrior:
     joints: Sequence[tuple[int, int, np.ndarray, np.ndarray]]
     dofs: np.ndarray
     free: float = 0.0
+    _arrays: tuple = field(init=False, repr=False, compare=False)  # the joints' four fields as float arrays (the kernel's)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_arrays", tuple(np.array([j[m] for j in self.joints], dtype=float) for m in range(4)))
 
     @classmethod
     def of(cls, weight: float, robot, dofs: np.ndarray, roundness: float = 0.25,
@@ -297,12 +301,3 @@ class TwistPrior:
 
     def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
         return kernels.twist_prior(q, *self._arrays, self.free, k, A, g)
-
-    @property
-    def _arrays(self):
-        arrays = self.__dict__.get("_cached")
-        if arrays is None:
-            arrays = (np.array([j[0] for j in self.joints], dtype=float), np.array([j[1] for j in self.joints], dtype=float),
-                      np.array([j[2] for j in self.joints], dtype=float), np.array([j[3] for j in self.joints], dtype=float))
-            object.__setattr__(self, "_cached", arrays)
-        return arrays

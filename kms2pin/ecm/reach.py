@@ -298,10 +298,9 @@ class ReachSearch:
             tried.add(i)
             r = self.reaches[i]
             starts = self._starts(q, r, views)
-            if starts[0] is q:  # no trial scores above the pose itself: nothing to refine
-                self._failed[i] = self._searches
-                continue
-            (qc, fc), base = self._refined(q, fit, starts, views, binned, coarse, timings, base)
+            # the pose itself ranked first: no trial scores above it, nothing to refine
+            (qc, fc), base = ((q, fit), base) if starts[0] is q else \
+                self._refined(q, fit, starts, views, binned, coarse, timings, base)
             if qc is q:
                 self._failed[i] = self._searches
                 continue
