@@ -39,6 +39,12 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   best pose to; :meth:`Tracker.refine`); and *own renders*, the same track on the
   model's own ellipsoids moving as the floor (the tracker's figure on its own renders, and
   the baseline of the frames/s ratio).
+- **Fit**: the mean silhouette fit (IoU, :meth:`Tracker.fit` at the sizes the track ended
+  with) of the tracked poses, of the floor poses and of ECM from the floor, and the share
+  of frames where the floor fits better than the track.  It tells the tracker's share of
+  the error apart: where the floor fits better the track lost a search (ECM's basin
+  holds a better pose it did not reach); where the track fits as well or better, the
+  silhouettes cannot tell the poses apart.
 """
 
 from __future__ import annotations
@@ -236,12 +242,18 @@ def summary(err: np.ndarray, flex_rmse: tuple[float, float]) -> str:
 
 
 def track(seq: Sequence, cameras, masks, options: dict):
-    """Track ``masks`` from the floor's first pose; returns (configurations, frames/s, flags per frame)."""
+    """Track ``masks`` from the floor's first pose; returns (configurations, frames/s, flags
+    per frame, the tracker)."""
     tr = Tracker(seq.model, cameras, q0=seq.floor[0], **options)
     t0 = time.perf_counter()
     results = [tr.step(m, source=f"frame {k}") for k, m in enumerate(masks)]
     fps = len(masks) / (time.perf_counter() - t0)
-    return np.array([r.q for r in results]), fps, [r.flags for r in results]
+    return np.array([r.q for r in results]), fps, [r.flags for r in results], tr
+
+
+def fits(tracker: Tracker, qs, masks) -> np.ndarray:
+    """Each frame's silhouette fit (IoU) at ``qs``, at the tracker's sizes after its track."""
+    return np.array([tracker.fit(q, m, source=f"frame {k}") for k, (q, m) in enumerate(zip(qs, masks))])
 
 
 def ecm_from_floor(seq: Sequence, cameras, masks, options: dict) -> np.ndarray:
@@ -261,7 +273,7 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     cameras = rig(seq.path, n, factor)
     truth = np.array([points(seq.subject, q, JOINTS) for q in seq.q])
     masks = rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
-    q, fps, flags = track(seq, cameras, masks, options)
+    q, fps, flags, tracker = track(seq, cameras, masks, options)
     err = joint_errors(seq.model, q, truth)
     flex_true = flexion(truth)
 
@@ -273,14 +285,19 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     print(f"{name:16s} tracked        | {summary(err, flex_rmse(q))} | {fps:5.1f} fr/s | {flagged} frames flagged",
           flush=True)
     row = {"mean": err.mean(), "worst": err.max(), "flexion": flex_rmse(q), "fps": fps}
+    fit, fit_floor = fits(tracker, q, masks), fits(tracker, seq.floor, masks)
+    print(f"{name:16s} fit (IoU)      | tracked {fit.mean():.3f}, floor {fit_floor.mean():.3f}: the floor fits better "
+          f"on {np.mean(fit_floor > fit):.0%} of the frames", flush=True)
+    row |= {"fit": fit.mean(), "fit_floor": fit_floor.mean()}
     if references:
         floor = joint_errors(seq.model, seq.floor, truth)
         print(f"{name:16s} floor          | {summary(floor, flex_rmse(seq.floor))}", flush=True)
         from_floor = ecm_from_floor(seq, cameras, masks, options)
         e2 = joint_errors(seq.model, from_floor, truth)
-        print(f"{name:16s} ECM from floor | {summary(e2, flex_rmse(from_floor))}", flush=True)
+        print(f"{name:16s} ECM from floor | {summary(e2, flex_rmse(from_floor))} | fit "
+              f"{fits(tracker, from_floor, masks).mean():.3f}", flush=True)
         own = rendered(seq.model, seq.floor, cameras, "ellipsoid", seed, cache)
-        q_own, fps_own, _ = track(seq, cameras, own, options)
+        q_own, fps_own, _, _ = track(seq, cameras, own, options)
         e3 = joint_errors(seq.model, q_own, np.array([points(seq.model, x, JOINTS) for x in seq.floor]))
         print(f"{name:16s} own renders    | {summary(e3, flex_rmse(q_own))} | {fps_own:5.1f} fr/s", flush=True)
         print(f"{name:16s} ratios         | tracked / ECM from floor {err.mean() / e2.mean():.2f}x, tracked - floor "
@@ -324,10 +341,11 @@ def main() -> None:
         if motion not in sequences:
             sequences[motion] = load_sequence(a.bvh, motion, a.frames)
         rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options, not a.defaults)
-    print("\ncase             |  mean |  worst | knees, elbows | frames/s" + (" | floor | ECM from floor | own renders | "
+    print("\ncase             |  mean |  worst | knees, elbows | frames/s | fit: tracked / floor" + (" | floor | ECM from floor | own renders | "
                                                                       "fr/s real / own" if a.references else ""))
     for name, r in rows.items():
         print(f"{name:16s} | {r['mean']:5.1f} | {r['worst']:6.1f} | {r['flexion'][0]:5.1f}, {r['flexion'][1]:5.1f} deg | {r['fps']:8.1f}"
+              f" | {r['fit']:.3f} / {r['fit_floor']:.3f}"
               + (f" | {r['floor']:5.1f} | {r['from_floor']:14.1f} | {r['own']:11.1f} | {r['fps_ratio']:.2f}"
                  if a.references else ""))
     if len(rows) > 1:

@@ -1,0 +1,162 @@
+"""Real human motion over many noise seeds, and a variant measured against the preset seed
+by seed (issue #31).  One run of ``realmotion.py`` is one draw: with two cameras at
+320x240 the seeds' spread (sd 18-19 mm) is larger than most changes to the tracker, so a
+change is judged over about twenty seeds, paired.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion_seeds.py --only walk-2cam-320
+        --seeds 0-19 [--jobs 2] [--option NAME=VALUE] [--variant NAME=VALUE[,NAME=VALUE...]]
+        [--frames N] [--bvh FILE] [--cache DIR]
+
+Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
+over the seeds their mean, median, range and standard deviation; the median over the
+seeds of the worst frame, of the frames above 120 mm, of the legs' (hips, knees, ankles)
+and the arms' (shoulders, elbows, wrists) error; the knees' and elbows' flexion RMSE; the
+silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); frames/s
+of process time (the median of the seeds; every job has a core to itself only with
+``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
+options too, and the paired difference (variant - preset) of the seeds' means with its
+standard error, and on how many seeds the variant is better.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import functools
+import os
+import tempfile
+import time
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import realmotion as rm  # noqa: E402
+
+from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
+
+#: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
+LEGS, ARMS = slice(0, 6), slice(6, 12)
+
+
+@functools.cache
+def _sequence(bvh: Path, motion: str, frames: int | None) -> rm.Sequence:
+    return rm.load_sequence(bvh, motion, frames)
+
+
+def track_seed(job: tuple) -> dict:
+    """One case's track on one seed's masks: its figures (module docstring)."""
+    name, bvh, frames, seed, cache, options = job
+    motion, n, factor, preset = rm.CASES[name]
+    seq = _sequence(bvh, motion, frames)
+    cameras = rm.rig(seq.path, n, factor)
+    masks = rm.rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
+    tracker = rm.Tracker(seq.model, cameras, q0=seq.floor[0], **{**preset, **options})
+    t0 = time.process_time()
+    q = np.array([tracker.step(m, source=f"frame {k}").q for k, m in enumerate(masks)])
+    fps = len(masks) / max(time.process_time() - t0, 1e-9)
+    truth = np.array([rm.points(seq.subject, x, rm.JOINTS) for x in seq.q])
+    pts = np.array([rm.points(seq.model, x, rm.JOINTS) for x in q])
+    err = np.linalg.norm(pts - truth, axis=2) * 1e3  # (frames, 13)
+    flex = rm.flexion(pts) - rm.flexion(truth)
+    fit, fit_floor = rm.fits(tracker, q, masks), rm.fits(tracker, seq.floor, masks)
+    frame = err.mean(axis=1)
+    return {"mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
+            "legs": err[:, LEGS].mean(), "arms": err[:, ARMS].mean(), "knees2": (flex[:, :2] ** 2).mean(),
+            "elbows2": (flex[:, 2:] ** 2).mean(), "fit": fit.mean(), "fit_floor": fit_floor.mean(),
+            "floor_better": float(np.mean(fit_floor > fit)), "fps": fps}
+
+
+def report(label: str, rows: list[dict]) -> str:
+    """The figures over the seeds of one case and option set."""
+    means = np.array([r["mean"] for r in rows])
+
+    def med(key: str) -> float:
+        return float(np.median([r[key] for r in rows]))
+
+    sd = f", sd {means.std(ddof=1):.1f}" if len(means) > 1 else ""
+    return (f"{label}\n    mean error per seed: {' '.join(f'{m:.1f}' for m in means)}\n"
+            f"    over the seeds: mean {means.mean():.1f} mm, median {np.median(means):.1f}, range "
+            f"{means.min():.1f}-{means.max():.1f}{sd}; worst frame {med('worst'):.0f}, frames above 120 mm "
+            f"{med('over120'):.0f} (medians); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
+            f"{np.sqrt(np.mean([r['knees2'] for r in rows])):.1f}, elbows {np.sqrt(np.mean([r['elbows2'] for r in rows])):.1f} "
+            f"deg; fit tracked {med('fit'):.3f}, floor {med('fit_floor'):.3f} (the floor better on "
+            f"{med('floor_better'):.0%} of the frames); {med('fps'):.1f} frames/s (process time)")
+
+
+def paired(base: list[dict], variant: list[dict]) -> str:
+    """The variant's seeds' means against the preset's, seed by seed."""
+    d = np.array([v["mean"] - b["mean"] for b, v in zip(base, variant)])
+    se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.1f} (standard error)" if len(d) > 1 else ""
+    return (f"    paired, variant - preset: {d.mean():+.1f} mm{se}; the variant better on {int(np.sum(d < 0))} "
+            f"seeds of {len(d)}")
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-19`` or ``0,3,5`` (or both: ``0-4,9``)."""
+    out = []
+    for part in filter(None, text.split(",")):
+        lo, sep, hi = part.partition("-")
+        out += list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
+    return out
+
+
+def parse_options(items: list[str], where: str, error) -> dict:
+    """NAME=VALUE items (a Tracker option each) as a dict."""
+    options = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in OPTION_GROUP:
+            error(f"{where} wants NAME=VALUE with a Tracker option's name, not {item!r}")
+        try:
+            options[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            options[key.strip()] = value.strip()
+    return options
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--only", default="walk-2cam-320", help="comma-separated cases: " + ", ".join(rm.CASES))
+    p.add_argument("--seeds", default="0-19", help="the masks' noise seeds: 0-19, or 0,3,5 (default 0-19)")
+    p.add_argument("--jobs", type=int, default=1, help="processes (at most the cores, for the frames/s)")
+    p.add_argument("--bvh", type=Path, default=rm.BVH, help="the motion capture (default: the shared CMU walk)")
+    p.add_argument("--frames", type=int, help="track only the first N frames")
+    p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a Tracker option for every run, preset and variant (repeatable)")
+    p.add_argument("--variant", metavar="NAME=VALUE[,NAME=VALUE...]",
+                   help="Tracker options tracked beside the preset on every seed, and compared seed by seed")
+    p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kms2pin-realmotion",
+                   help="where rendered masks are kept between runs")
+    a = p.parse_args()
+    try:
+        seeds = parse_seeds(a.seeds)
+    except ValueError:
+        p.error(f"--seeds wants 0-19 or 0,3,5, not {a.seeds!r}")
+    names = a.only.split(",")
+    bad = [n for n in names if n not in rm.CASES]
+    if bad:
+        p.error(f"--only: no case {', '.join(bad)}; the cases are {', '.join(rm.CASES)}")
+    options = parse_options(a.option, "--option", p.error)
+    sets = {"preset": options}
+    if a.variant:
+        sets["variant"] = {**options, **parse_options(a.variant.split(","), "--variant", p.error)}
+    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts) for name in names for opts in sets.values() for seed in seeds]
+    with Pool(max(1, a.jobs)) as pool:
+        out = pool.map(track_seed, jobs, chunksize=1)
+    k = 0
+    for name in names:
+        rows = {}
+        for label, opts in sets.items():
+            rows[label], k = out[k : k + len(seeds)], k + len(seeds)
+            extra = ", ".join(f"{n}={v}" for n, v in opts.items())
+            print(report(f"{name} {label}{f' ({extra})' if extra else ''}, seeds {a.seeds}", rows[label]), flush=True)
+        if "variant" in rows:
+            print(paired(rows["preset"], rows["variant"]), flush=True)
+
+
+if __name__ == "__main__":
+    main()
