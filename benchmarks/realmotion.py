@@ -11,7 +11,8 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   --scale 0.05644 --fps 30``), rendered as capsules (``synth --shape capsule``: each body's
   capsule, not its ellipsoid) at 30 Hz with 5 % noise (``synth --noise 0.05``).  ``fast``
   is the same trial at twice the speed (imported at 15 frames/s and played at 30): every
-  frame's motion doubled.
+  frame's motion doubled; ``mirror`` the trial mirrored left to right (:func:`mirrored`):
+  another walker, since the subject's two sides differ, making the mirror-image walk.
 - **The model**: ``kms2pin import --hinge LeftKnee,RightKnee,LeftElbow,RightElbow`` (knees and
   elbows hinged, as a careful user would), edited as a careful user would: the hinges
   given anatomical limits (:data:`HINGE_LIMITS`), and (:data:`FIXED`) the pelvis sides
@@ -55,7 +56,7 @@ import hashlib
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pinocchio as pin  # noqa: E402
 
-from kms2pin.bvh import ImportOptions, import_bvh, read_bvh  # noqa: E402
+from kms2pin.bvh import BvhFile, ImportOptions, import_bvh, read_bvh  # noqa: E402
 from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
@@ -91,8 +92,8 @@ HINGE_LIMITS = (-5.0, 160.0)
 #: joints a careful user makes fixed: the pelvis sides and the fingers never move in CMU's
 #: files, and the thumbs are 1-2 pixels wide at these resolutions
 FIXED = ("LHipJoint", "RHipJoint", "LFingers", "RFingers", "LThumb", "RThumb")
-#: motions: the trial's playback speed
-MOTIONS = {"walk": 1.0, "fast": 2.0}
+#: motions: (the trial's playback speed, mirrored left to right)
+MOTIONS = {"walk": (1.0, False), "fast": (2.0, False), "mirror": (1.0, True)}
 #: the lab's cameras: (azimuth from the path's main direction, deg; distance from the path's
 #: centre, m; height, m); n cameras are the first n
 CAMERAS = ((60.0, 6.0, 2.0), (150.0, 6.5, 2.8), (240.0, 7.0, 2.4), (330.0, 5.5, 2.2))
@@ -200,10 +201,39 @@ def fit_points(model: Robot, target: np.ndarray, q: np.ndarray, iterations: int 
     return q
 
 
+def mirrored(bvh: BvhFile) -> BvhFile:
+    """``bvh`` reflected through the plane across its X axis, left and right exchanged.  A
+    reflection P turns a rotation about u by θ into one about P u by -θ: the rotation
+    channels about Y and Z change sign, those about X do not (so each joint keeps its
+    Euler order), and offsets, End Sites and position channels have x negated.  A joint
+    named ``Left*``, ``L*`` or ``l*`` (``Right*``, ``R*``, ``r*``) whose twin is in the file
+    takes its twin's name."""
+    names = {j.name for j in bvh.joints}
+
+    def twin(name: str) -> str:
+        for a, b in (("Left", "Right"), ("Right", "Left"), ("L", "R"), ("R", "L"), ("l", "r"), ("r", "l")):
+            if name.startswith(a) and (other := b + name[len(a):]) in names:
+                return other
+        return name
+
+    def flip(p) -> tuple[float, float, float]:
+        return (-float(p[0]), float(p[1]), float(p[2]))
+
+    motion = np.array(bvh.motion, dtype=float)
+    joints = []
+    for j in bvh.joints:
+        for k, c in enumerate(j.channels):
+            if c.lower() in ("xposition", "yrotation", "zrotation"):
+                motion[:, j.first + k] *= -1.0
+        joints.append(replace(j, name=twin(j.name), offset=flip(j.offset),
+                              end_sites=tuple(flip(e) for e in j.end_sites)))
+    return replace(bvh, joints=tuple(joints), motion=motion)
+
+
 def load_sequence(path: Path, motion: str, frames: int | None) -> Sequence:
     """The subject, the model and the floor of ``motion`` (:data:`MOTIONS`) of the BVH file."""
-    bvh = read_bvh(path)
-    speed = MOTIONS[motion]
+    speed, mirror = MOTIONS[motion]
+    bvh = mirrored(read_bvh(path)) if mirror else read_bvh(path)
     imp = import_bvh(bvh, ImportOptions(scale=SCALE, fps=FPS / speed, name="subject"))
     model, start = tracking_model(bvh, speed)
     q = imp.q[:frames]
