@@ -9,7 +9,7 @@ change is judged over about twenty seeds, paired.
 
 Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
 over the seeds their mean, median, range and standard deviation; the median over the
-seeds of the worst frame, of the frames above 120 mm, of the legs' (hips, knees, ankles)
+seeds of the worst frame (and its range), of the frames above 120 mm, of the legs' (hips, knees, ankles)
 and the arms' (shoulders, elbows, wrists) error; the knees' and elbows' flexion RMSE; the
 silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); frames/s
 of process time (the median of the seeds; every job has a core to itself only with
@@ -80,8 +80,9 @@ def report(label: str, rows: list[dict]) -> str:
     sd = f", sd {means.std(ddof=1):.1f}" if len(means) > 1 else ""
     return (f"{label}\n    mean error per seed: {' '.join(f'{m:.1f}' for m in means)}\n"
             f"    over the seeds: mean {means.mean():.1f} mm, median {np.median(means):.1f}, range "
-            f"{means.min():.1f}-{means.max():.1f}{sd}; worst frame {med('worst'):.0f}, frames above 120 mm "
-            f"{med('over120'):.0f} (medians); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
+            f"{means.min():.1f}-{means.max():.1f}{sd}; worst frame {med('worst'):.0f} (the seeds' median; "
+            f"{min(r['worst'] for r in rows):.0f}-{max(r['worst'] for r in rows):.0f}), frames above 120 mm "
+            f"{med('over120'):.0f} (median); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2'] for r in rows])):.1f}, elbows {np.sqrt(np.mean([r['elbows2'] for r in rows])):.1f} "
             f"deg; fit tracked {med('fit'):.3f}, floor {med('fit_floor'):.3f} (the floor better on "
             f"{med('floor_better'):.0%} of the frames); {med('fps'):.1f} frames/s (process time)")
