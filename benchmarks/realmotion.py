@@ -92,6 +92,8 @@ HINGE_LIMITS = (-5.0, 160.0)
 #: joints a careful user makes fixed: the pelvis sides and the fingers never move in CMU's
 #: files, and the thumbs are 1-2 pixels wide at these resolutions
 FIXED = ("LHipJoint", "RHipJoint", "LFingers", "RFingers", "LThumb", "RThumb")
+#: where rendered masks are kept between runs (``--cache``)
+CACHE = Path(tempfile.gettempdir()) / "kms2pin-realmotion"
 #: motions: (the trial's playback speed, mirrored left to right)
 MOTIONS = {"walk": (1.0, False), "fast": (2.0, False), "mirror": (1.0, True)}
 #: the lab's cameras: (azimuth from the path's main direction, deg; distance from the path's
@@ -370,6 +372,21 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     return row
 
 
+def parse_options(items: list[str], flag: str, error) -> dict:
+    """``NAME=VALUE`` items, each a Tracker option (the value a Python literal, else the
+    text), as a dict; ``error`` (argparse's) for an item that is not one."""
+    options = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in OPTION_GROUP:
+            error(f"{flag} wants NAME=VALUE with a Tracker option's name, not {item!r}")
+        try:
+            options[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            options[key.strip()] = value.strip()
+    return options
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--bvh", type=Path, default=BVH, help="the motion capture (default: the shared CMU walk)")
@@ -382,18 +399,10 @@ def main() -> None:
                    help="track with the tracker's defaults, not the cases' presets (PEOPLE, PEOPLE_ONE_CAMERA)")
     p.add_argument("--no-references", dest="references", action="store_false",
                    help="leave out the floor, ECM from the floor and the own renders")
-    p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kms2pin-realmotion",
+    p.add_argument("--cache", type=Path, default=CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
-    options = {}
-    for item in a.option:
-        key, sep, value = item.partition("=")
-        if not sep or key.strip() not in OPTION_GROUP:
-            p.error(f"--option wants NAME=VALUE with a Tracker option's name, not {item!r}")
-        try:
-            options[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            options[key.strip()] = value.strip()
+    options = parse_options(a.option, "--option", p.error)
     names = a.only.split(",") if a.only else list(CASES)
     bad = [n for n in names if n not in CASES]
     if bad:

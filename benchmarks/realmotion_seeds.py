@@ -21,10 +21,8 @@ standard error, and on how many seeds the variant is better.
 from __future__ import annotations
 
 import argparse
-import ast
 import functools
 import os
-import tempfile
 import time
 from multiprocessing import Pool
 from pathlib import Path
@@ -35,8 +33,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import realmotion as rm  # noqa: E402
-
-from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -105,20 +101,6 @@ def parse_seeds(text: str) -> list[int]:
     return out
 
 
-def parse_options(items: list[str], where: str, error) -> dict:
-    """NAME=VALUE items (a Tracker option each) as a dict."""
-    options = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or key.strip() not in OPTION_GROUP:
-            error(f"{where} wants NAME=VALUE with a Tracker option's name, not {item!r}")
-        try:
-            options[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            options[key.strip()] = value.strip()
-    return options
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--only", default="walk-2cam-320", help="comma-separated cases: " + ", ".join(rm.CASES))
@@ -130,7 +112,7 @@ def main() -> None:
                    help="a Tracker option for every run, preset and variant (repeatable)")
     p.add_argument("--variant", metavar="NAME=VALUE[,NAME=VALUE...]",
                    help="Tracker options tracked beside the preset on every seed, and compared seed by seed")
-    p.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kms2pin-realmotion",
+    p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
     try:
@@ -141,10 +123,10 @@ def main() -> None:
     bad = [n for n in names if n not in rm.CASES]
     if bad:
         p.error(f"--only: no case {', '.join(bad)}; the cases are {', '.join(rm.CASES)}")
-    options = parse_options(a.option, "--option", p.error)
+    options = rm.parse_options(a.option, "--option", p.error)
     sets = {"preset": options}
     if a.variant:
-        sets["variant"] = {**options, **parse_options(a.variant.split(","), "--variant", p.error)}
+        sets["variant"] = {**options, **rm.parse_options(a.variant.split(","), "--variant", p.error)}
     jobs = [(name, a.bvh, a.frames, seed, a.cache, opts) for name in names for opts in sets.values() for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:
         out = pool.map(track_seed, jobs, chunksize=1)
