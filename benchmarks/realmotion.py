@@ -3,7 +3,7 @@ model ``kms2pin import`` makes of the same skeleton; accuracy in mm at 13 joints
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion.py [--only walk-2cam-320,...]
         [--bvh FILE] [--frames N] [--seed 0] [--option NAME=VALUE] [--defaults] [--no-references]
-        [--cache DIR]
+        [--cache DIR] [--arm-probe]
 
 What is measured (docs/benchmarks.md, "Real human motion"):
 
@@ -46,6 +46,11 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   the error apart: where the floor fits better the track lost a search (ECM's basin
   holds a better pose it did not reach); where the track fits as well or better, the
   silhouettes cannot tell the poses apart.
+- **The arm probe** (``--arm-probe``, :func:`arm_probe`): the same question for a lost arm
+  alone.  Where the track has a wrist more than 150 mm off, the arm is put at the truth,
+  the rest of the body left as tracked, and one frame's ECM is run from there and from the
+  track: if the true arm ends fitting better, a search that proposed it would keep it; if
+  not, the silhouettes cannot tell the arm's place, and no search can.
 """
 
 from __future__ import annotations
@@ -330,8 +335,45 @@ def ecm_from_floor(seq: Sequence, cameras, masks, options: dict) -> np.ndarray:
     return np.array([tr.refine(q, m, source=f"frame {k}")[0] for k, (q, m) in enumerate(zip(seq.floor, masks))])
 
 
+#: the probe's lost arm: a wrist this far from the truth's (mm); and the fit (IoU) a pose must
+#: gain over another to fit better
+LOST_WRIST = 150.0
+PROBE_GAIN = 0.003
+#: the arms' joints, by their places in JOINTS
+ARMS = {"left": (6, 7, 8), "right": (9, 10, 11)}
+
+
+def arm_probe(seq: Sequence, tracker: Tracker, qs, masks, truth: np.ndarray, every: int = 3) -> dict:
+    """Can the silhouettes tell a lost arm from the true one?  On every ``every``-th frame,
+    each arm whose wrist the track ``qs`` has more than :data:`LOST_WRIST` from the truth is
+    put at the truth (:func:`fit_points` to the true shoulder, elbow and wrist, the other
+    joints where the track has them) and one frame's ECM (:meth:`Tracker.refine`) is run
+    from there and from the track.  Returns the cases, the share on which the true arm
+    ends fitting better by :data:`PROBE_GAIN`, the mean fits and the wrists' mean error
+    (mm) before and after."""
+    rows = []
+    for k in range(0, len(qs), every):
+        p = points(seq.model, qs[k], JOINTS)
+        for idx in ARMS.values():
+            idx = list(idx)
+            if np.linalg.norm(p[idx[2]] - truth[k, idx[2]]) * 1e3 <= LOST_WRIST:
+                continue
+            target = p.copy()
+            target[idx] = truth[k, idx]
+            q_true = fit_points(seq.model, target, qs[k])
+            q_a, f_a = tracker.refine(qs[k], masks[k], source=f"frame {k}")
+            q_b, f_b = tracker.refine(q_true, masks[k], source=f"frame {k}")
+            wrist = [np.linalg.norm(points(seq.model, x, JOINTS)[idx[2]] - truth[k, idx[2]]) * 1e3 for x in (q_a, q_b)]
+            rows.append((f_a, f_b, *wrist))
+    r = np.array(rows).reshape(-1, 4)
+    if not len(r):
+        return {"cases": 0}
+    return {"cases": len(r), "better": float(np.mean(r[:, 1] > r[:, 0] + PROBE_GAIN)), "fit_track": r[:, 0].mean(),
+            "fit_true": r[:, 1].mean(), "wrist_track": r[:, 2].mean(), "wrist_true": r[:, 3].mean()}
+
+
 def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references: bool, options: dict,
-             preset: bool = True) -> dict:
+             preset: bool = True, probe: bool = False) -> dict:
     """Track one case (with its preset unless not ``preset``: the tracker's defaults) and
     print its rows; returns its figures."""
     motion, n, factor, case_preset = CASES[name]
@@ -355,6 +397,14 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     print(f"{name:16s} fit (IoU)      | tracked {fit.mean():.3f}, floor {fit_floor.mean():.3f}: the floor fits better "
           f"on {np.mean(fit_floor > fit):.0%} of the frames", flush=True)
     row |= {"fit": fit.mean(), "fit_floor": fit_floor.mean()}
+    if probe:
+        pr = arm_probe(seq, tracker, q, masks, truth)
+        if pr["cases"]:
+            print(f"{name:16s} arm probe      | {pr['cases']} lost arms (every third frame): from the true arm ECM "
+                  f"fits better by {PROBE_GAIN} on {pr['better']:.0%} ({pr['fit_true']:.4f} against "
+                  f"{pr['fit_track']:.4f}); wrists {pr['wrist_true']:.0f} against {pr['wrist_track']:.0f} mm", flush=True)
+        else:
+            print(f"{name:16s} arm probe      | no lost arm", flush=True)
     if references:
         floor = joint_errors(seq.model, seq.floor, truth)
         print(f"{name:16s} floor          | {summary(floor, flex_rmse(seq.floor))}", flush=True)
@@ -401,6 +451,8 @@ def main() -> None:
                    help="leave out the floor, ECM from the floor and the own renders")
     p.add_argument("--cache", type=Path, default=CACHE,
                    help="where rendered masks are kept between runs")
+    p.add_argument("--arm-probe", action="store_true",
+                   help="on frames whose wrist is lost, whether the silhouettes prefer the true arm (arm_probe)")
     a = p.parse_args()
     options = parse_options(a.option, "--option", p.error)
     names = a.only.split(",") if a.only else list(CASES)
@@ -413,7 +465,8 @@ def main() -> None:
         motion = CASES[name][0]
         if motion not in sequences:
             sequences[motion] = load_sequence(a.bvh, motion, a.frames)
-        rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options, not a.defaults)
+        rows[name] = run_case(name, sequences[motion], a.seed, a.cache, a.references, options, not a.defaults,
+                              a.arm_probe)
     print("\ncase             |  mean |  worst | knees, elbows | frames/s | fit: tracked / floor" + (" | floor | ECM from floor | own renders | "
                                                                       "fr/s real / own" if a.references else ""))
     for name, r in rows.items():
