@@ -282,9 +282,16 @@ def rendered(robot: Robot, q: np.ndarray, cameras: list[Camera], shape: str, see
         packed = np.load(path)["masks"]
         return list(np.unpackbits(packed, axis=-1, count=cameras[0].width).astype(bool))
     masks = [m for _, m in synthesize(robot, q, cameras, noise=NOISE, rng=np.random.default_rng(seed), shape=shape)]
-    if path is not None:
+    if path is not None:  # written whole or not at all: a run stopped while writing leaves no broken file
         cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, masks=np.packbits(np.array(masks), axis=-1))
+        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=cache)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez_compressed(f, masks=np.packbits(np.array(masks), axis=-1))
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
     return masks
 
 

@@ -13,14 +13,20 @@ is re-aimed, its own joint first (with the joint below kept, and put back at res
 limb unbent), then its child's (the one movable joint below it): a spherical joint
 turned so that its body's bone (from the joint to the body's centre) points along each
 of :data:`DIRECTIONS` directions spread over the sphere, the rest of its rotation kept;
-a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  Each choice is
-scored by the silhouette fit (IoU) with the rest of the body held, rendering only the
-moved bodies anew (a coarse score: a trial 20 degrees off a thin limb scores as one far
-off); unless the body's pose as it is scores best (the search then found nothing),
-the :data:`REFINED` best are screened by a few ECM iterations on the masks
-binned 2x2 (as the limb search's), the :data:`FINAL` best of those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN` both the frame's and that of the
-frame's pose run on by the same ECM (more iterations gain a little by themselves).  A body
-whose search found nothing rests for :data:`REST_FRAMES` frames.
+a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  A spherical
+joint with a hinge below it (an upper arm above an elbow, a thigh above a knee) is also
+turned about its bone by each of :data:`TWISTS_DEG`, each turn with the hinge's angles:
+the turn sets the plane the hinge bends in, which the round body's own silhouette does
+not show.  Each choice is scored by the silhouette fit (IoU) with the rest of the body
+held, rendering only the moved bodies anew (a coarse score: a trial 20 degrees off a
+thin limb scores as one far off).  Unless the body's pose as it is scores best (the
+search then found nothing), the :data:`REFINED` best directions, each with its best bend
+as it is turned and (a hinge below) its best over the turns, are screened by a few ECM
+iterations on the masks binned 2x2 (as the limb search's), the :data:`FINAL` best of
+those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN`
+both the frame's and that of the frame's pose run on by the same ECM (more iterations
+gain a little by themselves).  A body whose search found nothing rests for
+:data:`REST_FRAMES` frames.
 """
 
 from __future__ import annotations
@@ -37,7 +43,8 @@ from .loop import FrameECM
 from .masks import Views
 from .silhouette import body_coverage, group_counts, model_silhouette
 
-__all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "ReachSearch", "sphere_directions"]
+__all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "TWISTS_DEG", "ReachSearch",
+           "sphere_directions"]
 
 #: a body with less of its silhouette on the mask than this, in some camera, is lost
 COVERED = 0.5
@@ -49,6 +56,9 @@ BLOB = 0.02
 DIRECTIONS = 40
 #: the spacing of a revolute joint's trial angles (degrees)
 STEP_DEG = 20.0
+#: the turns about its bone tried for a spherical joint with a hinge below (an upper arm, a
+#: thigh), which set the plane the hinge bends in (degrees)
+TWISTS_DEG = (45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
 #: the IoU a re-aimed limb must gain to be kept: more than the limb search's, since a
 #: frame's ECM run again from anywhere near gains a little by itself
 GAIN = 0.01
@@ -172,20 +182,35 @@ class ReachSearch:
                 c[j.idx_q] = a
                 out.append(c)
             return out
-        m, data = self.robot.model, self.robot.data
-        jid = m.getJointId(j.name)
-        poses = self.robot.body_poses(q)
-        origin = data.oMi[jid]
-        bone = poses[body].translation - origin.translation
-        norm = float(np.linalg.norm(bone))
-        if norm < 1e-9:
+        bone = self._bone(q, j, body)
+        if bone is None:
             return []
+        return self._turned(q, j, [pin.Quaternion.FromTwoVectors(bone, t).toRotationMatrix() for t in self.directions])
+
+    def _twisted(self, q: np.ndarray, j: JointCoordinates, body: int) -> list[np.ndarray]:
+        """``q`` with spherical joint ``j`` turned about its body's bone by each of
+        :data:`TWISTS_DEG` (``body`` its child body): the plane a hinge below it bends in."""
+        bone = self._bone(q, j, body)
+        if bone is None:
+            return []
+        return self._turned(q, j, [pin.AngleAxis(float(a), bone).toRotationMatrix() for a in np.radians(TWISTS_DEG)])
+
+    def _bone(self, q: np.ndarray, j: JointCoordinates, body: int) -> np.ndarray | None:
+        """The unit vector (world) from joint ``j``'s point to ``body``'s centre at ``q``
+        (None if they coincide); leaves the robot's data at ``q``."""
+        poses = self.robot.body_poses(q)
+        bone = poses[body].translation - self.robot.data.oMi[self.robot.model.getJointId(j.name)].translation
+        norm = float(np.linalg.norm(bone))
+        return bone / norm if norm >= 1e-9 else None
+
+    def _turned(self, q: np.ndarray, j: JointCoordinates, turns: list[np.ndarray]) -> list[np.ndarray]:
+        """``q`` with spherical joint ``j``'s child turned by each world rotation of
+        ``turns`` about the joint's point (the robot's data at ``q``)."""
         x = q[j.idx_q : j.idx_q + 4]
         R = pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
-        A = origin.rotation @ R.T  # the joint's frame at zero rotation, world
+        A = self.robot.data.oMi[self.robot.model.getJointId(j.name)].rotation @ R.T  # the joint's frame at zero rotation, world
         out = []
-        for t in self.directions:
-            turn = pin.Quaternion.FromTwoVectors(bone / norm, t).toRotationMatrix()
+        for turn in turns:
             c = q.copy()
             c[j.idx_q : j.idx_q + 4] = pin.Quaternion(A.T @ turn @ A @ R).normalized().coeffs()
             out.append(c)
@@ -226,8 +251,9 @@ class ReachSearch:
         return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
-        """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (module docstring;
-        ``q`` itself among them if it scores so)."""
+        """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (``q`` itself
+        among them if it scores so), each with its best bend of the joint below, and for a
+        hinge below also its best turned about its bone (module docstring)."""
         trials = self._aimed(q, r.joint, r.body)
         if r.child is not None:  # each direction also with the joint below at rest (a limb unbent)
             sl = slice(r.child.idx_q, r.child.idx_q + r.child.nq)
@@ -239,7 +265,14 @@ class ReachSearch:
         starts = self._ranked([q, *trials], r.moved, views, held, REFINED)
         if r.child is None:
             return starts
-        return [self._ranked([c, *self._aimed(c, r.child, r.child_body)], r.moved, views, held, 1)[0] for c in starts]
+        twist = r.joint.kind == "spherical" and r.child.kind == "revolute"
+        out = []
+        for c in starts:  # each start's best bend of the joint below; for a hinge also its best turned about its bone
+            out += self._ranked([c, *self._aimed(c, r.child, r.child_body)], r.moved, views, held, 1)
+            if twist:
+                turned = [t for u in self._twisted(c, r.joint, r.body) for t in (u, *self._aimed(u, r.child, r.child_body))]
+                out += self._ranked(turned, r.moved, views, held, 1) if turned else []
+        return out
 
     def _refined(self, q: np.ndarray, fit: float, starts: list[np.ndarray], views: Views, binned: Views | None,
                  coarse: Views | None, timings: dict, base: tuple | None) -> tuple[tuple, tuple | None]:
