@@ -122,6 +122,9 @@ class BvhError(Kms2pinError):
 
 
 def did_you_mean(name: str, candidates: Iterable[str]) -> str:
-    """Return `` (did you mean 'x'?)`` for the closest candidate, or ``""``."""
+    """Return `` (did you mean 'x'?)`` for the closest candidate, or ``""`` (also for a
+    ``name`` that is not a string)."""
+    if not isinstance(name, str):
+        return ""
     close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
     return f" (did you mean '{close[0]}'?)" if close else ""

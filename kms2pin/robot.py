@@ -397,6 +397,8 @@ class Robot:
 
     # ------------------------------------------------------------------ shapes
     def _body(self, name: str):
+        if not isinstance(name, str):
+            raise TypeError(f"a body is given by its name (a str), not a {type(name).__name__}")
         if name not in self._index:
             raise RobotError(f"'{self.system.name}' has no body '{name}'{did_you_mean(name, self.bodies)}")
         return self.system.bodies[self._index[name]]

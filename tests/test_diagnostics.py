@@ -779,3 +779,16 @@ def test_no_traceback_from_the_installed_command(tmp_path):
     heads = [line for line in out.stderr.splitlines() if ": error: " in line]
     assert len(heads) == 2 and all(h.startswith(f"{spec}:") for h in heads)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_body_given_by_other_than_its_name_is_a_clear_type_error():
+    """robot.inner(body) with the spec's Body object, not its name: a TypeError that says
+    so (it was a TypeError from inside difflib's suggestion)."""
+    from kms2pin.errors import RobotError, did_you_mean
+
+    robot = load(SPECS / "human.kms")
+    with pytest.raises(TypeError, match="a body is given by its name \\(a str\\), not a Body"):
+        robot.inner(robot.system.bodies[0])
+    with pytest.raises(RobotError, match="has no body 'torsoo' \\(did you mean 'torso'\\?\\)"):
+        robot.inner("torsoo")
+    assert did_you_mean(3, ["torso"]) == ""
