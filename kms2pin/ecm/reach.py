@@ -21,7 +21,7 @@ not show.  Each choice is scored by the silhouette fit (IoU) with the rest of th
 held, rendering only the moved bodies anew (a coarse score: a trial 20 degrees off a
 thin limb scores as one far off).  Unless the body's pose as it is scores best (the
 search then found nothing), the :data:`REFINED` best directions, each with its best bend
-as it is turned and (a hinge below) its best over the turns, are screened by a few ECM
+unturned and (a hinge below) its best bend over the turns, are screened by a few ECM
 iterations on the masks binned 2x2 (as the limb search's), the :data:`FINAL` best of
 those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN`
 both the frame's and that of the frame's pose run on by the same ECM (more iterations
