@@ -122,14 +122,20 @@ def test_a_turn_about_the_bone_keeps_the_body_and_swings_the_hinge_below():
     turned = reach._twisted(qt, arm.joint, arm.body)
     assert len(turned) == len(TWISTS_DEG)
     hand = robot.body_pose(qt, "leftHand").translation
-    elbow_to_hand = np.linalg.norm(hand - robot.body_pose(qt, "leftForeArm").translation)
+    robot.forward(qt)
+    shoulder = robot.data.oMi[robot.model.getJointId(arm.joint.name)].translation.copy()
+    axis = robot.body_pose(qt, "leftUpperArm").translation - shoulder
+    axis /= np.linalg.norm(axis)
+    radius = np.linalg.norm((hand - shoulder) - ((hand - shoulder) @ axis) * axis)  # the hand from the bone's line
+    assert radius > 0.1  # the elbow bent 90 degrees: the hand well off the bone
     for angle, c in zip(TWISTS_DEG, turned):
-        # the upper arm's centre stays; the forearm's centre turns about the bone by the angle
+        # the upper arm's centre stays, the elbow keeps its angle, and the hand turns about
+        # the bone's line by the angle: a chord of 2 r sin(angle / 2)
         assert np.allclose(robot.body_pose(c, "leftUpperArm").translation,
                            robot.body_pose(qt, "leftUpperArm").translation, atol=1e-9)
-        assert c[arm.child.idx_q] == qt[arm.child.idx_q]  # the elbow as it was
+        assert c[arm.child.idx_q] == qt[arm.child.idx_q]
         moved = np.linalg.norm(robot.body_pose(c, "leftHand").translation - hand)
-        assert moved > 0.1 * elbow_to_hand * abs(np.sin(np.radians(angle) / 2))
+        assert moved == pytest.approx(2 * radius * abs(np.sin(np.radians(angle) / 2)), rel=1e-6)
 
 
 @pytest.mark.parametrize("twists", [True, False])
