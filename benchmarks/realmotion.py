@@ -72,6 +72,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pinocchio as pin  # noqa: E402
 
 from kms2pin.bvh import BvhFile, ImportOptions, import_bvh, read_bvh  # noqa: E402
+from kms2pin.commands._outputs import replaced  # noqa: E402
 from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
@@ -283,15 +284,8 @@ def rendered(robot: Robot, q: np.ndarray, cameras: list[Camera], shape: str, see
         return list(np.unpackbits(packed, axis=-1, count=cameras[0].width).astype(bool))
     masks = [m for _, m in synthesize(robot, q, cameras, noise=NOISE, rng=np.random.default_rng(seed), shape=shape)]
     if path is not None:  # written whole or not at all: a run stopped while writing leaves no broken file
-        cache.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=cache)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez_compressed(f, masks=np.packbits(np.array(masks), axis=-1))
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        with replaced(path) as tmp:
+            np.savez_compressed(tmp, masks=np.packbits(np.array(masks), axis=-1))
     return masks
 
 
@@ -361,15 +355,14 @@ def arm_probe(seq: Sequence, tracker: Tracker, qs, masks, truth: np.ndarray, eve
     rows = []
     for k in range(0, len(qs), every):
         p = points(seq.model, qs[k], JOINTS)
-        for idx in ARMS.values():
-            idx = list(idx)
-            if np.linalg.norm(p[idx[2]] - truth[k, idx[2]]) * 1e3 <= LOST_WRIST:
-                continue
+        lost = [list(idx) for idx in ARMS.values() if np.linalg.norm(p[idx[2]] - truth[k, idx[2]]) * 1e3 > LOST_WRIST]
+        if not lost:
+            continue
+        q_a, f_a = tracker.refine(qs[k], masks[k], source=f"frame {k}")  # the track's, once for both arms
+        for idx in lost:
             target = p.copy()
             target[idx] = truth[k, idx]
-            q_true = fit_points(seq.model, target, qs[k])
-            q_a, f_a = tracker.refine(qs[k], masks[k], source=f"frame {k}")
-            q_b, f_b = tracker.refine(q_true, masks[k], source=f"frame {k}")
+            q_b, f_b = tracker.refine(fit_points(seq.model, target, qs[k]), masks[k], source=f"frame {k}")
             wrist = [np.linalg.norm(points(seq.model, x, JOINTS)[idx[2]] - truth[k, idx[2]]) * 1e3 for x in (q_a, q_b)]
             rows.append((f_a, f_b, *wrist))
     r = np.array(rows).reshape(-1, 4)

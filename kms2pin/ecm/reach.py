@@ -182,33 +182,37 @@ class ReachSearch:
                 c[j.idx_q] = a
                 out.append(c)
             return out
-        bone = self._bone(q, j, body)
+        origin, bone = self._bone(q, j, body)
         if bone is None:
             return []
-        return self._turned(q, j, [pin.Quaternion.FromTwoVectors(bone, t).toRotationMatrix() for t in self.directions])
+        return self._turned(q, j, origin, [pin.Quaternion.FromTwoVectors(bone, t).toRotationMatrix()
+                                           for t in self.directions])
 
     def _twisted(self, q: np.ndarray, j: JointCoordinates, body: int) -> list[np.ndarray]:
         """``q`` with spherical joint ``j`` turned about its body's bone by each of
         :data:`TWISTS_DEG` (``body`` its child body): the plane a hinge below it bends in."""
-        bone = self._bone(q, j, body)
+        origin, bone = self._bone(q, j, body)
         if bone is None:
             return []
-        return self._turned(q, j, [pin.AngleAxis(float(a), bone).toRotationMatrix() for a in np.radians(TWISTS_DEG)])
+        return self._turned(q, j, origin, [pin.AngleAxis(float(a), bone).toRotationMatrix()
+                                           for a in np.radians(TWISTS_DEG)])
 
-    def _bone(self, q: np.ndarray, j: JointCoordinates, body: int) -> np.ndarray | None:
-        """The unit vector (world) from joint ``j``'s point to ``body``'s centre at ``q``
-        (None if they coincide); leaves the robot's data at ``q``."""
+    def _bone(self, q: np.ndarray, j: JointCoordinates, body: int) -> tuple[pin.SE3, np.ndarray | None]:
+        """Joint ``j``'s placement (world) at ``q`` and the unit vector from its point to
+        ``body``'s centre (None if they coincide)."""
         poses = self.robot.body_poses(q)
-        bone = poses[body].translation - self.robot.data.oMi[self.robot.model.getJointId(j.name)].translation
+        origin = self.robot.data.oMi[self.robot.model.getJointId(j.name)].copy()
+        bone = poses[body].translation - origin.translation
         norm = float(np.linalg.norm(bone))
-        return bone / norm if norm >= 1e-9 else None
+        return origin, (bone / norm if norm >= 1e-9 else None)
 
-    def _turned(self, q: np.ndarray, j: JointCoordinates, turns: list[np.ndarray]) -> list[np.ndarray]:
-        """``q`` with spherical joint ``j``'s child turned by each world rotation of
-        ``turns`` about the joint's point (the robot's data at ``q``)."""
+    @staticmethod
+    def _turned(q: np.ndarray, j: JointCoordinates, origin: pin.SE3, turns: list[np.ndarray]) -> list[np.ndarray]:
+        """``q`` with spherical joint ``j`` (placed at ``origin`` at ``q``) turned by each
+        world rotation of ``turns`` about its point."""
         x = q[j.idx_q : j.idx_q + 4]
         R = pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
-        A = self.robot.data.oMi[self.robot.model.getJointId(j.name)].rotation @ R.T  # the joint's frame at zero rotation, world
+        A = origin.rotation @ R.T  # the joint's frame at zero rotation, world
         out = []
         for turn in turns:
             c = q.copy()
