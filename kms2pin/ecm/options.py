@@ -281,6 +281,14 @@ class LimbSearchOptions(_Group):
     reach_search: bool = option(False, "re-aim a limb whose body lies over the background in some camera, "
                                        "or next to a blob of the masks the model leaves unexplained, pointing "
                                        "it at the masks (kms2pin.ecm.reach)", cli=Cli("--reach-search"))
+    reach_always: str = option(
+        "none", "the limbs the reach search also re-aims on frames where they are neither lost nor missed: the "
+                "'arms' (the limbs that do not reach the floor at the first pose), every one of the 'limbs' (a "
+                "spherical joint with one hinge below), or 'none'", choices=("none", "arms", "limbs"),
+        cli=Cli("--reach-always", "WHICH"))
+    reach_skip: bool = option(True, "a search whose trials all score below the pose as it is (the coarse score) "
+                                    "screens none of them (faster; the screening finds better poses the coarse "
+                                    "score ranks lower)", cli=Cli("--no-reach-skip"))
 
 
 #: the groups of :class:`TrackerOptions`: attribute name -> class

@@ -18,7 +18,7 @@ import pinocchio as pin
 from ..native import kernels
 from .limbs import twin_name
 
-__all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior"]
+__all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior", "feet"]
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,13 @@ def lowest_points(poses: Sequence[pin.SE3], inner: np.ndarray, up: np.ndarray) -
     return out
 
 
+def feet(robot, q: np.ndarray, inner: np.ndarray, up, margin: float = FOOT_MARGIN) -> tuple[tuple[int, ...], float]:
+    """The bodies whose lowest point at ``q`` lies within ``margin`` of the model's height
+    above the lowest body point (along the unit vector ``up``; world), and that lowest height."""
+    lows = lowest_points(robot.body_poses(q), inner, up) @ up
+    return tuple(int(i) for i in np.flatnonzero(lows <= lows.min() + margin * robot.height)), float(lows.min())
+
+
 @dataclass(frozen=True)
 class GroundPrior:
     """Ground contact: the feet's lowest point stands on the floor, and no foot goes
@@ -102,10 +109,9 @@ class GroundPrior:
         ``margin`` of the model's height above the lowest body point; the floor at
         ``height`` along ``up``, or (None) at that lowest point."""
         up = np.asarray(up, dtype=float) / np.linalg.norm(up)
-        lows = lowest_points(robot.body_poses(q), inner, up) @ up
-        feet = tuple(int(i) for i in np.flatnonzero(lows <= lows.min() + margin * robot.height))
-        frames = [robot.model.frames[robot.frame_ids[i]] for i in feet]
-        return cls(weight, robot.model, up, float(lows.min()) if height is None else float(height), feet, inner,
+        on, lowest = feet(robot, q, inner, up, margin)
+        frames = [robot.model.frames[robot.frame_ids[i]] for i in on]
+        return cls(weight, robot.model, up, lowest if height is None else float(height), on, inner,
                    tuple(int(f.parentJoint) for f in frames), tuple(pin.SE3(f.placement) for f in frames))
 
     def stiffness(self, A: np.ndarray) -> float:

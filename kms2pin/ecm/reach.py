@@ -27,10 +27,18 @@ those refined by the frame's ECM, and the best kept if its fit beats by :data:`G
 both the frame's and that of the frame's pose run on by the same ECM (more iterations
 gain a little by themselves).  A body whose search found nothing rests for
 :data:`REST_FRAMES` frames.
+
+An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
+the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
+on every frame they do not rest (``always``: the limbs with a hinge below, or those of
+them that do not reach the floor, the arms), each then screened even when its pose
+scores best (``skip=False``: at 640x480 the screening finds better poses that the
+coarse score ranks below it; docs/design/tracking-history.md).
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import cv2
@@ -97,8 +105,9 @@ class ReachSearch:
     """The reach search over ``robot``'s bodies on spherical or revolute joints, refining
     with ``ecm`` (module docstring)."""
 
-    def __init__(self, robot: Robot, ecm: FrameECM):
-        self.robot, self.ecm = robot, ecm
+    def __init__(self, robot: Robot, ecm: FrameECM, always: str = "none", feet: Collection[int] = (),
+                 skip: bool = True):
+        self.robot, self.ecm, self.skip = robot, ecm, skip
         m = robot.model
         by_name = {j.name: j for j in robot.joints}
         body_joint = {i: m.frames[f].parentJoint for i, f in enumerate(robot.frame_ids)}
@@ -115,7 +124,20 @@ class ReachSearch:
             child, child_body = kids[0] if len(kids) == 1 else (None, None)
             self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
         self.directions = sphere_directions(DIRECTIONS)
+        self.always = self._always(always, set(feet))
         self.forget()
+
+    def _always(self, which: str, feet: set[int]) -> tuple[int, ...]:
+        """The bodies re-aimed on every frame: ``which`` is "limbs" (every spherical joint
+        with a hinge below: upper arms, thighs), "arms" (those of them whose bodies hold
+        none of ``feet``) or "none"."""
+        if which not in ("none", "limbs", "arms"):
+            raise ValueError(f"always must be 'none', 'limbs' or 'arms', not {which!r}")
+        hinged = [i for i, r in self.reaches.items()
+                  if r.joint.kind == "spherical" and r.child is not None and r.child.kind == "revolute"]
+        if which == "none":
+            return ()
+        return tuple(i for i in hinged if which == "limbs" or not feet & set(self.reaches[i].moved))
 
     def forget(self) -> None:
         """Start afresh (a restarted track): no body rests after a search that found nothing."""
@@ -317,7 +339,8 @@ class ReachSearch:
         """The bodies to re-aim at ``q``: the topmost lost ones, then the missed limbs, none
         of ``tried``."""
         lost = self.lost(q, views)
-        return [i for i in lost + [k for k in self.missed(q, views) if k not in lost] if i not in tried]
+        found = lost + [k for k in self.missed(q, views) if k not in lost]
+        return [i for i in found + [k for k in self.always if k not in found] if i not in tried]
 
     def search(self, q: np.ndarray, fit: float, views: Views, binned: Views | None, coarse: Views | None,
                timings: dict) -> tuple[np.ndarray, float, list[LimbMove]]:
@@ -335,8 +358,8 @@ class ReachSearch:
             tried.add(i)
             r = self.reaches[i]
             starts = self._starts(q, r, views)
-            # the pose itself ranked first: no trial scores above it, nothing to refine
-            (qc, fc), base = ((q, fit), base) if starts[0] is q else \
+            # the pose itself ranked first: no trial scores above it, nothing to refine (with skip)
+            (qc, fc), base = ((q, fit), base) if self.skip and starts[0] is q else \
                 self._refined(q, fit, starts, views, binned, coarse, timings, base)
             if qc is q:
                 self._failed[i] = self._searches

@@ -36,7 +36,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
-from .priors import GroundPrior, RestPrior, TwistPrior, UprightPrior
+from .priors import GroundPrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
 from .silhouette import visible_bodies
 from .sizes import BodySizes
@@ -93,7 +93,7 @@ class Tracker:
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
-        self.reach = ReachSearch(robot, self.ecm) if opts.limbs.reach_search else None
+        self.reach = self._reach_search(opts) if opts.limbs.reach_search else None
         hyp, lim = opts.hypotheses, opts.limbs
         kinds = {"mirror": hyp.mirror_margin} if hyp.mirror_hypothesis else {}
         kinds |= {"swap": hyp.swap_margin} if hyp.swap_hypothesis else {}
@@ -164,6 +164,13 @@ class Tracker:
         self.sizes.calibrate(self._e_step_on(views), q, self.options.sizes.size_iterations, it.delta_start,
                              it.delta_final)
         self._set_ground(q)
+
+    def _reach_search(self, opts: TrackerOptions) -> ReachSearch:
+        """The reach search; the arms it re-aims every frame (``reach_always="arms"``) are the
+        limbs that do not reach the floor at the starting pose (its feet as the ground prior's)."""
+        lim, up = opts.limbs, np.asarray(opts.priors.up, dtype=float)
+        on = feet(self.robot, self.q, self.sizes.inner, up / np.linalg.norm(up))[0] if lim.reach_always == "arms" else ()
+        return ReachSearch(self.robot, self.ecm, lim.reach_always, on, lim.reach_skip)
 
     def _set_ground(self, q: np.ndarray) -> None:
         """The ground prior (``ground``) with its feet and floor (unless ``ground_height``

@@ -11,6 +11,7 @@ from kms2pin.ecm.masks import Views
 from kms2pin.ecm.reach import TWISTS_DEG, ReachSearch, sphere_directions
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
+from kms2pin.errors import OptionError
 from kms2pin.robot import load
 
 from ._tracking import DIR
@@ -163,3 +164,45 @@ def test_a_hinge_bent_in_the_wrong_plane_is_turned_back_by_the_reach_search(twis
         assert _arm_error_cm(robot, q, qt) < 3.0 and fit > fit_ecm + 0.01
     else:
         assert _arm_error_cm(robot, q, qt) > 10.0
+
+
+@pytest.mark.parametrize("which, bodies", [
+    ("none", set()),
+    ("arms", {"leftUpperArm", "rightUpperArm"}),
+    ("limbs", {"leftUpperArm", "rightUpperArm", "leftThigh", "rightThigh"}),
+])
+def test_the_limbs_re_aimed_on_every_frame_are_the_hinged_limbs_or_those_off_the_floor(which, bodies):
+    """``reach_always``: the spherical joints with a hinge below (shoulders above elbows,
+    hips above knees; not the waist or the neck, nor a hinge itself), and of them the arms:
+    the limbs holding none of the bodies on the floor at the starting pose."""
+    robot, qt, cams, _ = _bent_arm_scene()
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always=which)
+    assert {robot.bodies[i] for i in tr.reach.always} == bodies
+
+
+def test_reach_always_is_checked():
+    robot, qt, cams, _ = _bent_arm_scene()
+    with pytest.raises(OptionError, match="reach_always"):
+        Tracker(robot, cams, q0=qt, reach_search=True, reach_always="legs")
+
+
+@pytest.mark.parametrize("always", ["none", "arms"])
+def test_an_arm_neither_lost_nor_missed_is_re_aimed_only_when_the_arms_are_always_searched(always):
+    """The forearm bent the other way: the arm keeps its silhouette on the masks and leaves
+    no blob, so the search finds nothing to re-aim unless it re-aims the arms anyway; then
+    the turn about the bone brings the forearm back."""
+    robot, qt, cams, masks = _bent_arm_scene()
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always=always,
+                 reach_skip=False)
+    arm = tr.reach.reaches[robot.index("leftUpperArm")]
+    q_ecm, fit_ecm = tr.refine(tr.reach._twisted(qt, arm.joint, arm.body)[TWISTS_DEG.index(180.0)], masks)
+    views = Views.of(cams, masks)
+    assert tr.reach.lost(q_ecm, views) == [] and tr.reach.missed(q_ecm, views) == []
+    assert _arm_error_cm(robot, q_ecm, qt) > 20.0
+    q, fit, moves = tr.reach.search(q_ecm, fit_ecm, views, views.binned({c: c.binned(2) for c in cams}), None,
+                                    new_timings())
+    if always == "none":
+        assert moves == [] and q is q_ecm
+    else:
+        assert "pointed 'leftUpperArm_shoulder' at the masks" in [m.flag() for m in moves]
+        assert _arm_error_cm(robot, q, qt) < 3.0 and fit > fit_ecm + 0.01
