@@ -375,10 +375,13 @@ class Preset(Mapping):
 #: limb search on a fall of 0.015 fired on many frames (docs/design/tracking-history.md, video)
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
-#: motion model, the reach search, the spine's twist held near rest and the round limbs'
-#: within 90° of it, which no silhouette shows (docs/tracking.md, "Real motion")
+#: motion model, the reach search (the arms re-aimed on every frame, each search screened:
+#: an arm lost in front of the trunk is neither lost nor missed), the spine's twist held
+#: near rest and the round limbs' within 90° of it, which no silhouette shows
+#: (docs/tracking.md, "Real motion")
 _PEOPLE = {"prediction": "learnt", "reach_search": True}
-PEOPLE = Preset("people", {**_PEOPLE, "spine_twist": 0.05, "twist_prior": 1.0, "twist_free": 90.0})
+PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": False, "spine_twist": 0.05,
+                           "twist_prior": 1.0, "twist_free": 90.0})
 #: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
 #: priors (they made the one-camera walk worse), and the upright, rest and ground priors
 #: hold what one view does not fix (the ground: the floor at the lowest foot of q0, along

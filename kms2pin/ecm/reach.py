@@ -31,9 +31,9 @@ gain a little by themselves).  A body whose search found nothing rests for
 An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
 on every frame they do not rest (``always``: the limbs with a hinge below, or those of
-them that do not reach the floor, the arms), each then screened even when its pose
-scores best (``skip=False``: at 640x480 the screening finds better poses that the
-coarse score ranks below it; docs/design/tracking-history.md).
+them that do not reach the floor, the arms); and ``skip=False`` screens every search's
+best trials even when the pose itself scores best, since the screening finds better
+poses that the coarse score ranks below it (docs/design/tracking-history.md).
 """
 
 from __future__ import annotations
@@ -336,8 +336,8 @@ class ReachSearch:
         return best, base
 
     def _todo(self, q: np.ndarray, views: Views, tried: set[int]) -> list[int]:
-        """The bodies to re-aim at ``q``: the topmost lost ones, then the missed limbs, none
-        of ``tried``."""
+        """The bodies to re-aim at ``q``: the topmost lost ones, the missed limbs, then those
+        always re-aimed, none of ``tried``."""
         lost = self.lost(q, views)
         found = lost + [k for k in self.missed(q, views) if k not in lost]
         return [i for i in found + [k for k in self.always if k not in found] if i not in tried]
