@@ -31,7 +31,8 @@ gain a little by themselves).  A body whose search found nothing rests for
 An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
 on every frame they do not rest (``always``: the limbs with a hinge below, or those of
-them that do not reach the floor, the arms); and ``skip=False`` screens every search's
+them that do not reach the floor, the arms; of their trials the :data:`ALWAYS_REFINED`
+best directions are screened); and ``skip=False`` screens every search's
 best trials even when the pose itself scores best, since the screening finds better
 poses that the coarse score ranks below it (docs/design/tracking-history.md).
 """
@@ -51,8 +52,8 @@ from .loop import FrameECM
 from .masks import Views
 from .silhouette import body_coverage, group_counts, model_silhouette
 
-__all__ = ["BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "TWISTS_DEG", "ReachSearch",
-           "sphere_directions"]
+__all__ = ["ALWAYS_REFINED", "BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "TWISTS_DEG",
+           "ReachSearch", "sphere_directions"]
 
 #: a body with less of its silhouette on the mask than this, in some camera, is lost
 COVERED = 0.5
@@ -76,6 +77,9 @@ REST_FRAMES = 2
 #: of those refined at full resolution
 REFINED = 6
 FINAL = 2
+#: the best-scoring trials screened for a body re-aimed on every frame (``always``): most
+#: such searches find nothing, and three did as well as six (docs/design/tracking-history.md)
+ALWAYS_REFINED = 3
 
 
 def sphere_directions(n: int) -> np.ndarray:
@@ -277,7 +281,8 @@ class ReachSearch:
         return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
-        """The :data:`REFINED` best trials of re-aiming ``r`` from ``q`` (``q`` itself
+        """The :data:`REFINED` (a body always re-aimed: :data:`ALWAYS_REFINED`) best trials
+        of re-aiming ``r`` from ``q`` (``q`` itself
         among them if it scores so), each with its best bend of the joint below, and for a
         hinge below also its best turned about its bone (module docstring)."""
         trials = self._aimed(q, r.joint, r.body)
@@ -288,7 +293,7 @@ class ReachSearch:
                 c[sl] = self.robot.q_rest[sl]
                 trials.append(c)
         held = self._held(q, r.moved, views)
-        starts = self._ranked([q, *trials], r.moved, views, held, REFINED)
+        starts = self._ranked([q, *trials], r.moved, views, held, ALWAYS_REFINED if r.body in self.always else REFINED)
         if r.child is None:
             return starts
         twist = r.joint.kind == "spherical" and r.child.kind == "revolute"

@@ -8,7 +8,7 @@ import pytest
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.loop import new_timings
 from kms2pin.ecm.masks import Views
-from kms2pin.ecm.reach import TWISTS_DEG, ReachSearch, sphere_directions
+from kms2pin.ecm.reach import ALWAYS_REFINED, REFINED, TWISTS_DEG, ReachSearch, sphere_directions
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.errors import OptionError
@@ -206,3 +206,16 @@ def test_an_arm_neither_lost_nor_missed_is_re_aimed_only_when_the_arms_are_alway
     else:
         assert "pointed 'leftUpperArm_shoulder' at the masks" in [m.flag() for m in moves]
         assert _arm_error_cm(robot, q, qt) < 3.0 and fit > fit_ecm + 0.01
+
+
+def test_a_limb_always_re_aimed_screens_fewer_starts_than_a_flagged_one():
+    """A body of ``always`` keeps its :data:`ALWAYS_REFINED` best directions (each with its
+    best bend as it is and turned about the bone), a flagged body its :data:`REFINED`."""
+    robot, qt, cams, masks = _bent_arm_scene()
+    views = Views.of(cams, masks)
+    counts = {}
+    for always in ("none", "arms"):
+        tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always=always)
+        arm = tr.reach.reaches[robot.index("leftUpperArm")]
+        counts[always] = len(tr.reach._starts(qt, arm, views))
+    assert counts == {"none": 2 * REFINED, "arms": 2 * ALWAYS_REFINED}
