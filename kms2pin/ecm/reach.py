@@ -104,6 +104,12 @@ class _Reach:
     child_body: int | None
     span: float
 
+    @property
+    def hinged(self) -> bool:
+        """A spherical joint with a hinge below (an upper arm above its elbow, a thigh above
+        its knee): turned about its bone too, and a limb ``always`` may name."""
+        return self.joint.kind == "spherical" and self.child is not None and self.child.kind == "revolute"
+
 
 class ReachSearch:
     """The reach search over ``robot``'s bodies on spherical or revolute joints, refining
@@ -137,11 +143,9 @@ class ReachSearch:
         none of ``feet``) or "none"."""
         if which not in ("none", "limbs", "arms"):
             raise ValueError(f"always must be 'none', 'limbs' or 'arms', not {which!r}")
-        hinged = [i for i, r in self.reaches.items()
-                  if r.joint.kind == "spherical" and r.child is not None and r.child.kind == "revolute"]
         if which == "none":
             return ()
-        return tuple(i for i in hinged if which == "limbs" or not feet & set(self.reaches[i].moved))
+        return tuple(i for i, r in self.reaches.items() if r.hinged and (which == "limbs" or not feet & set(r.moved)))
 
     def forget(self) -> None:
         """Start afresh (a restarted track): no body rests after a search that found nothing."""
@@ -282,9 +286,9 @@ class ReachSearch:
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
         """The :data:`REFINED` (a body always re-aimed: :data:`ALWAYS_REFINED`) best trials
-        of re-aiming ``r`` from ``q`` (``q`` itself
-        among them if it scores so), each with its best bend of the joint below, and for a
-        hinge below also its best turned about its bone (module docstring)."""
+        of re-aiming ``r`` from ``q`` (``q`` itself among them if it scores so), each with
+        its best bend of the joint below, and for a hinge below also its best turned about
+        its bone (module docstring)."""
         trials = self._aimed(q, r.joint, r.body)
         if r.child is not None:  # each direction also with the joint below at rest (a limb unbent)
             sl = slice(r.child.idx_q, r.child.idx_q + r.child.nq)
@@ -296,11 +300,10 @@ class ReachSearch:
         starts = self._ranked([q, *trials], r.moved, views, held, ALWAYS_REFINED if r.body in self.always else REFINED)
         if r.child is None:
             return starts
-        twist = r.joint.kind == "spherical" and r.child.kind == "revolute"
         out = []
         for c in starts:  # each start's best bend of the joint below; for a hinge also its best turned about its bone
             out += self._ranked([c, *self._aimed(c, r.child, r.child_body)], r.moved, views, held, 1)
-            if twist:
+            if r.hinged:
                 turned = [t for u in self._twisted(c, r.joint, r.body) for t in (u, *self._aimed(u, r.child, r.child_body))]
                 out += self._ranked(turned, r.moved, views, held, 1) if turned else []
         return out
