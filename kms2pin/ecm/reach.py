@@ -23,7 +23,8 @@ thin limb scores as one far off).  Unless the body's pose as it is scores best (
 search then found nothing), the :data:`REFINED` best directions, each with its best bend
 unturned and (a hinge below) its best bend over the turns, are screened by a few ECM
 iterations on the masks binned 2x2 (as the limb search's), the :data:`FINAL` best of
-those refined by the frame's ECM, and the best kept if its fit beats by :data:`GAIN`
+those refined by the frame's ECM (none that screened more than :data:`REFINE_MARGIN`
+below the frame's fit), and the best kept if its fit beats by :data:`GAIN`
 both the frame's and that of the frame's pose run on by the same ECM (more iterations
 gain a little by themselves).  A body whose search found nothing rests for
 :data:`REST_FRAMES` frames.
@@ -31,8 +32,8 @@ gain a little by themselves).  A body whose search found nothing rests for
 An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
 on every frame they do not rest (``always``: the limbs with a hinge below, or those of
-them that do not reach the floor, the arms; of their trials the :data:`ALWAYS_REFINED`
-best directions are screened); and ``skip=False`` screens every search's
+them that do not reach the floor, the arms; of their trials the ``always_directions``
+best directions are screened, by default :data:`ALWAYS_REFINED`); and ``skip=False`` screens every search's
 best trials even when the pose itself scores best, since the screening finds better
 poses that the coarse score ranks below it (docs/design/tracking-history.md).
 """
@@ -52,8 +53,8 @@ from .loop import FrameECM
 from .masks import Views
 from .silhouette import body_coverage, group_counts, model_silhouette
 
-__all__ = ["ALWAYS_REFINED", "BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "TWISTS_DEG",
-           "ReachSearch", "sphere_directions"]
+__all__ = ["ALWAYS_REFINED", "BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "REFINE_MARGIN",
+           "TWISTS_DEG", "ReachSearch", "sphere_directions"]
 
 #: a body with less of its silhouette on the mask than this, in some camera, is lost
 COVERED = 0.5
@@ -77,9 +78,12 @@ REST_FRAMES = 2
 #: of those refined at full resolution
 REFINED = 6
 FINAL = 2
-#: the best-scoring trials screened for a body re-aimed on every frame (``always``): most
-#: such searches find nothing, and three did as well as six (docs/design/tracking-history.md)
+#: the best-scoring trials screened for a body re-aimed on every frame (``always``) by
+#: default (the option ``reach_always_directions``; docs/design/tracking-history.md)
 ALWAYS_REFINED = 3
+#: a screened trial that fits worse than the frame's pose by more than this (IoU) is not
+#: refined: the frame's ECM does not make up that much (docs/design/tracking-history.md)
+REFINE_MARGIN = 0.005
 
 
 def sphere_directions(n: int) -> np.ndarray:
@@ -116,8 +120,8 @@ class ReachSearch:
     with ``ecm`` (module docstring)."""
 
     def __init__(self, robot: Robot, ecm: FrameECM, always: str = "none", feet: Collection[int] = (),
-                 skip: bool = True):
-        self.robot, self.ecm, self.skip = robot, ecm, skip
+                 skip: bool = True, always_directions: int = ALWAYS_REFINED):
+        self.robot, self.ecm, self.skip, self.always_directions = robot, ecm, skip, always_directions
         m = robot.model
         by_name = {j.name: j for j in robot.joints}
         body_joint = {i: m.frames[f].parentJoint for i, f in enumerate(robot.frame_ids)}
@@ -285,7 +289,7 @@ class ReachSearch:
         return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
-        """The :data:`REFINED` (a body always re-aimed: :data:`ALWAYS_REFINED`) best trials
+        """The :data:`REFINED` (a body always re-aimed: ``always_directions``) best trials
         of re-aiming ``r`` from ``q`` (``q`` itself among them if it scores so), each with
         its best bend of the joint below, and for a hinge below also its best turned about
         its bone (module docstring)."""
@@ -297,7 +301,8 @@ class ReachSearch:
                 c[sl] = self.robot.q_rest[sl]
                 trials.append(c)
         held = self._held(q, r.moved, views)
-        starts = self._ranked([q, *trials], r.moved, views, held, ALWAYS_REFINED if r.body in self.always else REFINED)
+        starts = self._ranked([q, *trials], r.moved, views, held,
+                             self.always_directions if r.body in self.always else REFINED)
         if r.child is None:
             return starts
         out = []
@@ -330,7 +335,9 @@ class ReachSearch:
                 screens[key] = (c, self.ecm.fit(c, views))
             c, fc = screens[key]
             screened.append((-fc, k, c))
-        for *_, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
+        for neg_fit, _, c in sorted(screened, key=lambda x: x[:2])[:FINAL]:
+            if -neg_fit < fit - REFINE_MARGIN:  # best first: the rest screened lower still
+                break
             key = c.tobytes()
             if key not in refined:
                 qc, _, _ = self.ecm.run(c, views, timings, coarse=coarse)

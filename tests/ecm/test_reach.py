@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kms2pin.ecm import reach as reach_module
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.loop import new_timings
 from kms2pin.ecm.masks import Views
-from kms2pin.ecm.reach import ALWAYS_REFINED, REFINED, TWISTS_DEG, ReachSearch, sphere_directions
+from kms2pin.ecm.reach import ALWAYS_REFINED, REFINE_MARGIN, REFINED, TWISTS_DEG, ReachSearch, sphere_directions
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.errors import OptionError
@@ -209,13 +210,46 @@ def test_an_arm_neither_lost_nor_missed_is_re_aimed_only_when_the_arms_are_alway
 
 
 def test_a_limb_always_re_aimed_screens_fewer_starts_than_a_flagged_one():
-    """A body of ``always`` keeps its :data:`ALWAYS_REFINED` best directions (each with its
-    best bend as it is and turned about the bone), a flagged body its :data:`REFINED`."""
+    """A body of ``always`` keeps its ``reach_always_directions`` best directions (by
+    default :data:`ALWAYS_REFINED`; each with its best bend as it is and turned about the
+    bone), a flagged body its :data:`REFINED`."""
     robot, qt, cams, masks = _bent_arm_scene()
     views = Views.of(cams, masks)
     counts = {}
-    for always in ("none", "arms"):
-        tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always=always)
+    for always, n in (("none", None), ("arms", None), ("arms", 5)):
+        more = {} if n is None else {"reach_always_directions": n}
+        tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always=always, **more)
         arm = tr.reach.reaches[robot.index("leftUpperArm")]
-        counts[always] = len(tr.reach._starts(qt, arm, views))
-    assert counts == {"none": 2 * REFINED, "arms": 2 * ALWAYS_REFINED}
+        counts[always, n] = len(tr.reach._starts(qt, arm, views))
+    assert counts == {("none", None): 2 * REFINED, ("arms", None): 2 * ALWAYS_REFINED, ("arms", 5): 2 * 5}
+    with pytest.raises(OptionError, match="reach_always_directions"):
+        Tracker(robot, cams, q0=qt, reach_search=True, reach_always_directions=0)
+
+
+def test_a_trial_that_screens_well_below_the_pose_is_not_refined(monkeypatch):
+    """The arm at the truth, searched anyway (``reach_skip=False``): its trials are
+    screened, and those that screen more than :data:`REFINE_MARGIN` below the truth's fit
+    are not refined by the frame's ECM; refining them all keeps the truth as well."""
+    robot, qt, cams, masks = _bent_arm_scene()
+    views = Views.of(cams, masks)
+    binned = views.binned({c: c.binned(2) for c in cams})
+    found = {}
+    for margin in (REFINE_MARGIN, 1.0):
+        monkeypatch.setattr(reach_module, "REFINE_MARGIN", margin)
+        tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_always="arms",
+                     reach_skip=False)
+        fit = tr.fit(qt, masks)
+        run, screens, refined = tr.ecm.run, [], []
+
+        def counted(q, v, timings, max_iterations=None, coarse=None, binned=False):
+            out = run(q, v, timings, max_iterations, coarse, binned)
+            (screens if binned else refined).append(tr.ecm.fit(out[0], views))
+            return out
+
+        monkeypatch.setattr(tr.ecm, "run", counted)
+        q, _, moves = tr.reach.search(qt, fit, views, binned, None, new_timings())
+        found[margin] = (q is qt, moves, len(screens), len(refined))
+        if margin == REFINE_MARGIN:
+            assert screens and sorted(screens)[-1] < fit - REFINE_MARGIN
+    assert found[REFINE_MARGIN] == (True, [], found[1.0][2], 0)
+    assert found[1.0][:2] == (True, []) and found[1.0][3] > 0
