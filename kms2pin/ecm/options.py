@@ -291,8 +291,8 @@ class LimbSearchOptions(_Group):
                                     "score ranks lower)", cli=Cli("--no-reach-skip"))
     reach_always_directions: int = option(
         3, "how many of its best-scoring directions the reach search screens for a limb it re-aims on every frame "
-           "(reach_always; a lost or missed limb screens 6): 3 is faster and tracked the walk as well, 6 the walk "
-           "at twice the speed in 320x240 images", range=Range(1, whole=True), cli=Cli("--reach-always-directions", "N"))
+           "(reach_always; a lost or missed limb screens 6): 6 is slower and, on real walks, within the runs' "
+           "spread of 3", range=Range(1, whole=True), cli=Cli("--reach-always-directions", "N"))
 
 
 #: the groups of :class:`TrackerOptions`: attribute name -> class
