@@ -68,7 +68,8 @@ def lowest_points(poses: Sequence[pin.SE3], inner: np.ndarray, up: np.ndarray) -
 
 def feet(robot, q: np.ndarray, inner: np.ndarray, up, margin: float = FOOT_MARGIN) -> tuple[tuple[int, ...], float]:
     """The bodies whose lowest point at ``q`` lies within ``margin`` of the model's height
-    above the lowest body point (along the unit vector ``up``; world), and that lowest height."""
+    above the lowest body point (along ``up``, normalized here; world), and that lowest height."""
+    up = np.asarray(up, dtype=float) / np.linalg.norm(up)
     lows = lowest_points(robot.body_poses(q), inner, up) @ up
     return tuple(int(i) for i in np.flatnonzero(lows <= lows.min() + margin * robot.height)), float(lows.min())
 

@@ -33,9 +33,10 @@ An arm lost in front of the trunk is neither lost nor missed (its silhouette sta
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
 on every frame they do not rest (``always``: the limbs with a hinge below, or those of
 them that do not reach the floor, the arms; of their trials the ``always_directions``
-best directions are screened, by default :data:`ALWAYS_REFINED`); and ``skip=False`` screens every search's
-best trials even when the pose itself scores best, since the screening finds better
-poses that the coarse score ranks below it (docs/design/tracking-history.md).
+best directions are screened, by default :data:`ALWAYS_REFINED`); and ``skip=False``
+screens every search's best trials even when the pose itself scores best, since the
+screening finds better poses that the coarse score ranks below it
+(docs/design/tracking-history.md).
 """
 
 from __future__ import annotations

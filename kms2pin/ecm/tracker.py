@@ -168,8 +168,8 @@ class Tracker:
     def _reach_search(self, opts: TrackerOptions) -> ReachSearch:
         """The reach search; the arms it re-aims every frame (``reach_always="arms"``) are the
         limbs that do not reach the floor at the starting pose (its feet as the ground prior's)."""
-        lim, up = opts.limbs, np.asarray(opts.priors.up, dtype=float)
-        on = feet(self.robot, self.q, self.sizes.inner, up / np.linalg.norm(up))[0] if lim.reach_always == "arms" else ()
+        lim = opts.limbs
+        on = feet(self.robot, self.q, self.sizes.inner, opts.priors.up)[0] if lim.reach_always == "arms" else ()
         return ReachSearch(self.robot, self.ecm, lim.reach_always, on, lim.reach_skip, lim.reach_always_directions)
 
     def _set_ground(self, q: np.ndarray) -> None:
