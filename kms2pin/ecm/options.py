@@ -204,6 +204,10 @@ class PriorOptions(_Group):
     up: tuple = option((0.0, 1.0, 0.0), "the world's vertical for 'upright' (normalized)", cli=Cli("--up"))
     rest_prior: float = option(0.0, "pull every joint, not the root, towards the spec's rest pose (0.01 for "
                                     "people walking, one camera)", range=Range(0.0), cli=Cli("--rest-prior", "K"))
+    rest_hidden: float = option(0.0, "pull only the joints the images hardly hold towards rest: those whose "
+                                     "stiffness is below this share of the joints' mean (0: every joint); a seen "
+                                     "arm is then left to the images",
+                                range=Range(0.0, 1.0), cli=Cli("--rest-hidden", "S"))
     twist_prior: float = option(0.0, "hold a spherical joint's twist about its child's long axis near rest "
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
