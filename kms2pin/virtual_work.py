@@ -509,11 +509,10 @@ class SpringTerm(Protocol):
     once per update from the springs' first Newton matrix, then it adds its term to the
     Newton system at every configuration tried."""
 
-    def stiffness(self, A: np.ndarray) -> float | np.ndarray:
-        """The term's stiffness, from the springs' Newton matrix ``A`` (nv, nv) at the start
-        (a number, or one per coordinate the term holds)."""
+    def stiffness(self, A: np.ndarray) -> float:
+        """The term's stiffness, from the springs' Newton matrix ``A`` (nv, nv) at the start."""
 
-    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float | np.ndarray) -> float:
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
         """Add the term (stiffness ``k``) to ``A`` and ``g`` at ``q`` (``data`` after a
         forward pass at ``q``); return its energy."""
 
@@ -566,7 +565,7 @@ def pose_spring_update(
     if limited:
         qi, vi, lo, hi = st.limits[:4]
         lo, hi = lo + 1e-12, hi - 1e-12
-    ks: list[float | np.ndarray] = []  # the terms' stiffnesses, fixed at the first configuration's springs
+    ks: list[float] = []  # the terms' stiffnesses, fixed at the first configuration's springs
 
     def springs(q):
         """Newton system A, g and energy of the springs (and terms) at q."""

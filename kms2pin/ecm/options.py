@@ -202,12 +202,12 @@ class PriorOptions(_Group):
     upright: float = option(0.0, "hold the free root's tilt from 'up' at the first frame's (0.1 for people "
                                  "walking, one camera)", range=Range(0.0), cli=Cli("--upright", "K"))
     up: tuple = option((0.0, 1.0, 0.0), "the world's vertical for 'upright' (normalized)", cli=Cli("--up"))
-    rest_prior: float = option(0.0, "pull every joint, not the root, towards the spec's rest pose (0.01 for "
-                                    "people walking, one camera)", range=Range(0.0), cli=Cli("--rest-prior", "K"))
-    rest_hidden: float = option(0.0, "pull only the joints the images hardly hold towards rest: those whose "
-                                     "stiffness is below this share of the joints' mean (0: every joint); a seen "
-                                     "arm is then left to the images",
-                                range=Range(0.0, 1.0), cli=Cli("--rest-hidden", "S"))
+    rest_prior: float = option(0.0, "pull every joint, not the root, towards the rest pose, 'rest_pose' (0.01 "
+                                    "for people walking, one camera)", range=Range(0.0), cli=Cli("--rest-prior", "K"))
+    rest_pose: str = option("spec", "the pose 'rest_prior' pulls towards: the spec's rest pose ('spec') or the "
+                                    "track's starting pose q0 ('start': for a model whose rest is far from how "
+                                    "the subject stands, such as a BVH import's T-pose)", choices=("spec", "start"),
+                            cli=Cli("--rest-pose", "WHICH"))
     twist_prior: float = option(0.0, "hold a spherical joint's twist about its child's long axis near rest "
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
@@ -392,9 +392,11 @@ PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": Fals
                            "twist_prior": 1.0, "twist_free": 90.0})
 #: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
 #: priors (they made the one-camera walk worse), and the upright, rest and ground priors
-#: hold what one view does not fix (the ground: the floor at the lowest foot of q0, along
-#: ``up``; docs/tracking.md, docs/design/tracking-history.md)
-PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "ground": 0.1})
+#: hold what one view does not fix (the rest: the starting pose, the way the subject
+#: stands; the ground: the floor at the lowest foot of q0, along ``up``; docs/tracking.md,
+#: docs/design/tracking-history.md)
+PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "rest_pose": "start",
+                                                  "ground": 0.1})
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -183,27 +183,22 @@ class UprightPrior:
 @dataclass(frozen=True)
 class RestPrior:
     """Pulls the joints at velocity indices ``dofs`` (every joint, not a free root)
-    towards ``q_rest``: energy ½ Σ_j k_j (q ⊖ q_rest)_j² (``pin.difference``).  Stiffness:
-    ``weight`` times those joints' mean stiffness m (the diagonal of the springs' Newton
-    matrix), on every joint, or with ``hidden`` > 0 only on the joints whose own stiffness
-    is below ``hidden`` m (the images hardly hold them; 0 on the others)."""
+    towards ``q_rest``: energy ½ k Σ_j (q ⊖ q_rest)_j² (``pin.difference``).  Stiffness:
+    ``weight`` times those joints' mean stiffness."""
 
     weight: float
     model: pin.Model
     q_rest: np.ndarray
     dofs: np.ndarray
-    hidden: float = 0.0
 
-    def stiffness(self, A: np.ndarray) -> float | np.ndarray:
-        own = A[self.dofs, self.dofs]
-        k = self.weight * float(np.mean(own))
-        return k if self.hidden <= 0.0 else np.where(own < self.hidden * np.mean(own), k, 0.0)
+    def stiffness(self, A: np.ndarray) -> float:
+        return self.weight * float(np.mean(A[self.dofs, self.dofs]))
 
-    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float | np.ndarray) -> float:
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
         d = pin.difference(self.model, self.q_rest, q)[self.dofs]
         A[self.dofs, self.dofs] += k
         g[self.dofs] += k * d
-        return 0.5 * float(np.sum(k * d * d))
+        return 0.5 * k * float(d @ d)
 
 
 def spine_joints(robot) -> list:

@@ -85,7 +85,8 @@ class Tracker:
         if free and pri.upright > 0:
             priors.append(UprightPrior.at(pri.upright, pri.up, self.q[:7]))
         if pri.rest_prior > 0 and joint_dofs.size:
-            priors.append(RestPrior(pri.rest_prior, robot.model, robot.q_rest, joint_dofs, pri.rest_hidden))
+            rest = self.q.copy() if pri.rest_pose == "start" else robot.q_rest
+            priors.append(RestPrior(pri.rest_prior, robot.model, rest, joint_dofs))
         twists = (TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) if pri.twist_prior > 0
                   else None,
                   TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)

@@ -73,11 +73,11 @@ def test_options_and_keywords_give_the_same_track():
     cams = [Camera.default()]
     motion = make_motion(robot, "walk", 8)
     frames = [render(robot, q, cams) for q in motion]
-    opts = TrackerOptions(priors=PriorOptions(upright=0.1, rest_prior=0.01, ground=0.1),
+    opts = TrackerOptions(priors=PriorOptions(upright=0.1, rest_prior=0.01, rest_pose="start", ground=0.1),
                           iteration=IterationOptions(max_iterations=6, prediction="learnt"),
                           limbs=LimbSearchOptions(reach_search=True))
     a = Tracker(robot, cams, opts, q0=motion[0])
-    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, ground=0.1, max_iterations=6,
+    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, rest_pose="start", ground=0.1, max_iterations=6,
                 prediction="learnt", reach_search=True)
     assert a.options == b.options
     for m in frames:
