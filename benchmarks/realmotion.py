@@ -33,7 +33,8 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee
   and elbow flexion (the angle between the bones, from the joint positions) RMSE, the
   knees' and the elbows' apart; frames/s; with one camera the error split along the
-  camera's rays (the depth one view hardly sees) and across them (:func:`ray_split`).
+  camera's rays (the depth one view hardly sees) and across them
+  (:func:`kms2pin.ecm.evaluate.ray_parts`).
 - **References**: the *floor*, the model's configuration nearest the subject's true joint
   points on each frame (:func:`floor_poses`: what the model can express at best; here the
   import's own angles, exact at the 13 joints, checked); *ECM from the floor*,
@@ -75,6 +76,7 @@ import pinocchio as pin  # noqa: E402
 from kms2pin.bvh import BvhFile, ImportOptions, import_bvh, read_bvh  # noqa: E402
 from kms2pin.commands._outputs import replaced  # noqa: E402
 from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
+from kms2pin.ecm.evaluate import ray_parts  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.lang import parse_text  # noqa: E402
@@ -295,18 +297,6 @@ def joint_errors(model: Robot, qs, truth: np.ndarray) -> np.ndarray:
     return np.array([np.linalg.norm(points(model, q, JOINTS) - t, axis=1).mean() for q, t in zip(qs, truth)]) * 1e3
 
 
-def ray_split(p: np.ndarray, truth: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(frames,) each frame's mean error (mm) of the joints ``p`` (frames, 13, 3) along the
-    ray from the camera ``centre`` through each true joint (its length: the depth one view
-    hardly sees) and across it (what the camera sees); as :func:`kms2pin.ecm.evaluate.evaluate`
-    splits the bodies' centres."""
-    rays = truth - np.asarray(centre, dtype=float)
-    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
-    along = np.sum((p - truth) * rays, axis=2)
-    across = np.linalg.norm(p - truth - along[..., None] * rays, axis=2)
-    return np.abs(along).mean(axis=1) * 1e3, across.mean(axis=1) * 1e3
-
-
 def flexion(p: np.ndarray) -> np.ndarray:
     """(frames, 4) knee and elbow flexion (deg) of joint positions ``p`` (frames, 13, 3):
     the angle between the bone above the joint and the one below (0 straight)."""
@@ -407,7 +397,8 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
           flush=True)
     row = {"mean": err.mean(), "worst": err.max(), "flexion": flex_rmse(q), "fps": fps}
     if n == 1:  # one view: how much of the error is depth
-        depth, across = ray_split(np.array([points(seq.model, x, JOINTS) for x in q]), truth, cameras[0].centre)
+        along, side = ray_parts(np.array([points(seq.model, x, JOINTS) for x in q]), truth, cameras[0].centre)
+        depth, across = np.abs(along).mean(axis=1) * 1e3, side.mean(axis=1) * 1e3
         print(f"{name:16s} along the ray  | mean {depth.mean():6.1f} mm along the camera's rays, {across.mean():6.1f} "
               f"across them", flush=True)
         row |= {"depth": depth.mean(), "across": across.mean()}

@@ -92,6 +92,16 @@ def _joint_errors(robot: Robot, tracked: Trajectory, truth: Trajectory, n: int):
     return joints, offsets, kinds
 
 
+def ray_parts(points: np.ndarray, truth: np.ndarray, camera_centre) -> tuple[np.ndarray, np.ndarray]:
+    """Each error ``points - truth`` (..., 3; world) split along the ray from
+    ``camera_centre`` through the true point (signed, towards the far side positive) and
+    across it (its length): (...,) and (...,), in the points' units."""
+    rays = truth - np.asarray(camera_centre, dtype=float)
+    rays /= np.maximum(np.linalg.norm(rays, axis=-1, keepdims=True), 1e-300)
+    along = np.sum((points - truth) * rays, axis=-1)
+    return along, np.linalg.norm(points - truth - along[..., None] * rays, axis=-1)
+
+
 def _centre_errors(robot: Robot, tracked: Trajectory, truth: Trajectory, n: int, camera_centre):
     """Per frame: the mean body-centre error (% of the height), and its parts along and
     across the camera's rays (when a camera centre is given)."""
@@ -102,9 +112,7 @@ def _centre_errors(robot: Robot, tracked: Trajectory, truth: Trajectory, n: int,
         b = robot.maximal_coordinates(truth.q[k])[:, :3]
         per_frame[k] = np.linalg.norm(a - b, axis=1).mean() * scale
         if camera_centre is not None:
-            rays = b - np.asarray(camera_centre, dtype=float)
-            rays /= np.maximum(np.linalg.norm(rays, axis=1), 1e-300)[:, None]
-            along = np.sum((a - b) * rays, axis=1)
+            along, side = ray_parts(a, b, camera_centre)
             depth[k] = np.abs(along).mean() * scale
-            across[k] = np.linalg.norm(a - b - along[:, None] * rays, axis=1).mean() * scale
+            across[k] = side.mean() * scale
     return per_frame, depth, across

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import PNG, set_csv_cell
 
-from kms2pin.ecm.evaluate import evaluate
+from kms2pin.ecm.evaluate import evaluate, ray_parts
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.tracker import Trajectory
 from kms2pin.errors import InputDataError
@@ -154,3 +154,24 @@ def test_a_header_only_csv_is_an_empty_trajectory(hand, tmp_path):
     path = tmp_path / "t.csv"
     Trajectory(robot, truth[:0]).to_csv(path)
     assert len(Trajectory.from_csv(robot, path)) == 0
+
+
+def test_ray_parts_split_an_error_along_and_across_the_camera_ray():
+    """A displacement along the ray through the true point is all depth (signed: away
+    from the camera positive), one at right angles to it all across; in general the two
+    parts are orthogonal, |e|² = along² + across²."""
+    rng = np.random.default_rng(2)
+    centre = np.array([-5.0, 2.0, 1.0])
+    truth = rng.normal(size=(4, 13, 3))
+    ray = (truth - centre) / np.linalg.norm(truth - centre, axis=-1, keepdims=True)
+    side = np.cross(ray, [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side, axis=-1, keepdims=True)
+    along, across = ray_parts(truth - 0.1 * ray, truth, centre)
+    np.testing.assert_allclose(along, -0.1)
+    np.testing.assert_allclose(across, 0.0, atol=1e-12)
+    along, across = ray_parts(truth + 0.2 * side, truth, centre)
+    np.testing.assert_allclose(along, 0.0, atol=1e-12)
+    np.testing.assert_allclose(across, 0.2)
+    e = rng.normal(size=truth.shape)
+    along, across = ray_parts(truth + e, truth, centre)
+    np.testing.assert_allclose(along**2 + across**2, np.sum(e**2, axis=-1))
