@@ -202,7 +202,7 @@ class PriorOptions(_Group):
     upright: float = option(0.0, "hold the free root's tilt from 'up' at the first frame's (0.1 for people "
                                  "walking, one camera)", range=Range(0.0), cli=Cli("--upright", "K"))
     up: tuple = option((0.0, 1.0, 0.0), "the world's vertical for 'upright' (normalized)", cli=Cli("--up"))
-    rest_prior: float = option(0.0, "pull every joint, not the root, towards the rest pose, 'rest_pose' (0.01 "
+    rest_prior: float = option(0.0, "pull every joint, not the root, towards the pose 'rest_pose' names (0.01 "
                                     "for people walking, one camera)", range=Range(0.0), cli=Cli("--rest-prior", "K"))
     rest_pose: str = option("spec", "the pose 'rest_prior' pulls towards: the spec's rest pose ('spec') or the "
                                     "track's starting pose q0 ('start': for a model whose rest is far from how "

@@ -77,8 +77,8 @@ def test_options_and_keywords_give_the_same_track():
                           iteration=IterationOptions(max_iterations=6, prediction="learnt"),
                           limbs=LimbSearchOptions(reach_search=True))
     a = Tracker(robot, cams, opts, q0=motion[0])
-    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, rest_pose="start", ground=0.1, max_iterations=6,
-                prediction="learnt", reach_search=True)
+    b = Tracker(robot, cams, q0=motion[0], upright=0.1, rest_prior=0.01, rest_pose="start", ground=0.1,
+                max_iterations=6, prediction="learnt", reach_search=True)
     assert a.options == b.options
     for m in frames:
         ra, rb = a.step(m), b.step(m)

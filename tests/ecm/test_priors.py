@@ -438,7 +438,6 @@ def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
     assert sorted(p.free for p in tr.ecm.priors if isinstance(p, TwistPrior)) == pytest.approx(np.radians([30, 90]))
 
 
-
 def _cmu_walker():
     """CMU's subject 131 imported from its BVH file in tests/data (rest: the T-pose) and
     its configurations at 30 frames/s."""
