@@ -3,34 +3,67 @@ one-camera tracker's alternative hypotheses (the mirror image, the left/right sw
 :mod:`kms2pin.ecm.symmetry`) and its limb search work on.
 
 Twins are named ``left*`` / ``right*`` (compared in lower case): bodies such as
-``leftThigh`` / ``rightThigh``, joints such as ``leftThigh_hip`` / ``rightThigh_hip``.
+``leftThigh`` / ``rightThigh``, joints such as ``leftThigh_hip`` / ``rightThigh_hip``; or, where
+both names exist, ``l*`` / ``r*`` (CMU's ``lhand`` / ``rhand``, ``LHipJoint`` / ``RHipJoint``),
+``*_l`` / ``*_r``, ``*.L`` / ``*.R`` or ``*_left`` / ``*_right`` (:func:`twin_name`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 
 import numpy as np
 import pinocchio as pin
 
 from ..robot import Robot
 
+#: the spellings of a side that name a twin only where the other side's name exists
+#: (``lhand`` / ``rhand`` in CMU's skeletons, ``thigh_l`` / ``thigh_r``, ``hand.L`` / ``hand.R``)
+_SIDE_SPELLINGS = (("l", "r", True), ("_l", "_r", False), (".l", ".r", False), ("_left", "_right", False))
 
-def twin_name(name: str) -> str:
-    """The left/right twin of a lower-case name (``leftthigh`` <-> ``rightthigh``); itself if
-    it is neither."""
+
+def twin_name(name: str, names: Collection[str] = ()) -> str:
+    """The left/right twin of a lower-case name: ``left*`` <-> ``right*`` always
+    (``leftthigh`` <-> ``rightthigh``); ``l*`` <-> ``r*``, ``*_l`` <-> ``*_r``, ``*.l`` <-> ``*.r``
+    and ``*_left`` <-> ``*_right`` when the other is one of ``names`` (lower case too: the
+    model's names of the same kind).  Itself if it has none."""
     if name.startswith("left"):
         return "right" + name[4:]
     if name.startswith("right"):
         return "left" + name[5:]
+    for left, right, prefix in _SIDE_SPELLINGS:
+        for a, b in ((left, right), (right, left)):
+            if prefix and name.startswith(a) and len(name) > len(a):
+                other = b + name[len(a):]
+            elif not prefix and name.endswith(a) and len(name) > len(a):
+                other = name[: -len(a)] + b
+            else:
+                continue
+            if other in names:
+                return other
     return name
 
 
 def left_right_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
-    """Index pairs (left, right) of the names that are ``left*`` / ``right*`` twins,
-    compared in lower case."""
+    """Index pairs (left, right) of the names that are left/right twins
+    (:func:`twin_name`), compared in lower case."""
     index = {n.lower(): i for i, n in enumerate(names)}
-    return [(i, index[twin_name(n)]) for n, i in index.items() if n.startswith("left") and twin_name(n) in index]
+    pairs = []
+    for n, i in index.items():
+        t = twin_name(n, index)
+        if t != n and t in index and is_left(n, t):
+            pairs.append((i, index[t]))
+    return pairs
+
+
+def is_left(name: str, twin: str) -> bool:
+    """Whether ``name`` is the left one of the twins ``name`` / ``twin`` (lower case)."""
+    if name.startswith("left") or twin.startswith("right"):
+        return True
+    if name.startswith("right") or twin.startswith("left"):
+        return False
+    return any(name.startswith(a) and twin.startswith(b) if prefix else name.endswith(a) and twin.endswith(b)
+               for a, b, prefix in _SIDE_SPELLINGS)
 
 
 def sagittal_mirror(robot: Robot) -> np.ndarray | None:

@@ -2,7 +2,9 @@
 
 ECM descends to the nearest fit, and a limb on the wrong side of the trunk (an arm
 swung back that the image shows forward), a finger folded the wrong way, or twin
-limbs that took each other's images are local minima it does not leave.  When a
+limbs that took each other's images (with one camera, which cannot tell them apart:
+two or more views do, and there an exchange that fit a little better traded a real
+walker's legs; docs/design/tracking-history.md) are local minima it does not leave.  When a
 frame's fit falls well below the running fit, every such move (:class:`LimbMove`) is
 tried: each candidate is screened by a few ECM iterations on the masks binned 2x2,
 the best few are refined at full resolution, and the best is kept if its fit (IoU)
@@ -136,7 +138,7 @@ class LimbSearch:
         for i, t in left_right_pairs(list(self.limbs)):
             name, twin = list(self.limbs)[i], list(self.limbs)[t]
             left = self.limbs[name]
-            mates = [by_low.get(twin_name(j.name.lower())) for j in left.chain]
+            mates = [by_low.get(twin_name(j.name.lower(), by_low)) for j in left.chain]
             if any(x is None or x.kind != j.kind for x, j in zip(mates, left.chain)):
                 continue
             if any(j.kind == "spherical" for j in left.chain) and self.symmetry is None:
@@ -181,14 +183,14 @@ class LimbSearch:
         u = np.asarray(j.spec.parent_bvec.orient, dtype=float)
         return abs(float(pin.log3(R @ R0.T) @ u)) / float(np.linalg.norm(u))
 
-    def candidates(self, q: np.ndarray) -> list[tuple[LimbMove, np.ndarray]]:
-        """Every move from ``q`` with its configuration: twin limbs exchanged; each limb
-        put back at rest below its first joint; each limb swung the other way, once
-        with the joints below kept and once with them put back at rest (an arm swung
-        back over the trunk is often bent there too)."""
+    def candidates(self, q: np.ndarray, exchange: bool = True) -> list[tuple[LimbMove, np.ndarray]]:
+        """Every move from ``q`` with its configuration: twin limbs exchanged (if
+        ``exchange``); each limb put back at rest below its first joint; each limb swung
+        the other way, once with the joints below kept and once with them put back at
+        rest (an arm swung back over the trunk is often bent there too)."""
         rest = self.robot.q_rest
         out = []
-        for left, right, a, b in self.pairs:
+        for left, right, a, b in self.pairs if exchange else ():
             c = self._exchanged(q, a, b)
             if c is not None:
                 out.append((self.exchange_move(left, right), c))
@@ -216,10 +218,11 @@ class LimbSearch:
                timings: dict, screen_only: bool = False) -> tuple[np.ndarray, float, LimbMove | None]:
         """Try every candidate from ``q`` (its ``fit``), screened on the ``binned`` views:
         the best of each kind (:data:`REFINED`) refined (``coarse``: the frame's coarse
-        views), the best kept if it gains :data:`GAIN`.  Returns the configuration, its
+        views), the best kept if it gains :data:`GAIN`.  Twins are exchanged with one
+        view only (module docstring).  Returns the configuration, its
         fit and the move (None if none was kept).  ``screen_only``: the best screened
         candidate unrefined (the limb-search hypothesis's start)."""
-        cands = self.candidates(q)
+        cands = self.candidates(q, exchange=len(views) == 1)
         if not cands or binned is None:
             return q, fit, None
         screened = []

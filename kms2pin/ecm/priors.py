@@ -203,7 +203,7 @@ class RestPrior:
 
 def spine_joints(robot) -> list:
     """The spherical joints on the way from a free root's body to each body that twin
-    joints (``left*`` / ``right*``, :func:`~kms2pin.ecm.limbs.twin_name`) both leave:
+    joints (``left*`` / ``right*`` and the like, :func:`~kms2pin.ecm.limbs.twin_name`) both leave:
     a spine from the pelvis to the chest the arms hang from.  Empty for a fixed root, or
     when the twins branch from the root's body itself."""
     if robot.root != "free":
@@ -213,8 +213,8 @@ def spine_joints(robot) -> list:
     coords = {j.name: j for j in robot.joints}
     found: set[str] = set()
     for low, j in lower.items():
-        twin = lower.get(twin_name(low))
-        if twin is None or not low.startswith("left") or twin.parent != j.parent:
+        twin = lower.get(twin_name(low, lower))
+        if twin is None or twin is j or twin.parent != j.parent:
             continue
         body = j.parent
         while body in by_child and by_child[body].parent is not None:

@@ -94,6 +94,29 @@ def test_limb_search_exchanges_arms_that_took_each_others_place(frame):
     assert centre_error(robot, q, qt) < 0.5
 
 
+def test_two_views_exchange_no_twins():
+    """The arms traded as in the test above, seen by a second, raised camera too: two
+    views tell twins apart, so the limb search offers no exchange (with one view it is
+    what finds the truth; on a real walker seen by two cameras exchanges that fit a
+    little better traded the legs)."""
+    robot = load(DIR / "anatomical" / "fullbody.kms", root="free")
+    qt = make_motion(robot, "walk", 300)[258]
+    cams = [Camera.default(), Camera.look_at(position=[8, 3, 8], target=qt[:3])]
+    masks = render(robot, qt, cams)
+    m = robot.model
+    il, ir = (m.joints[m.getJointId(f"{s}UpperArm_shoulder")].idx_q for s in ("left", "right"))
+    q0 = qt.copy()
+    q0[il] = qt[ir]
+    q0[ir] = robot.q_rest[ir] - 0.3 * (qt[ir] - robot.q_rest[ir])
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False)
+    kinds = {move.kind for move, _ in tr.limbs.candidates(q0)}
+    assert "exchange" in kinds and "exchange" not in {move.kind for move, _ in tr.limbs.candidates(q0, exchange=False)}
+    move = tr.swing_limbs(q0, masks)[2]
+    assert move is None or move.kind != "exchange"
+    one = Tracker(robot, cams[:1], q0=qt, calibrate_sizes=False)
+    assert one.swing_limbs(q0, masks[:1])[2].kind == "exchange"
+
+
 @pytest.mark.parametrize("seed,frame,off_deg", [(0, 40, (-40, 100)), (2, 40, (30, -120))])
 def test_limb_search_unfolds_a_finger_folded_the_wrong_way(seed, frame, off_deg):
     """One camera, clean silhouettes of the hand's random motion: the first finger's

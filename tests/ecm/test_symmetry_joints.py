@@ -8,7 +8,7 @@ import pinocchio as pin
 import pytest
 
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.limbs import limb_joints
+from kms2pin.ecm.limbs import left_right_pairs, limb_joints, twin_name
 from kms2pin.ecm.limbsearch import LimbSearch
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.prediction import Motion
@@ -137,3 +137,58 @@ def test_the_human_is_tracked_by_three_cameras_as_it_walks_out_of_the_sagittal_p
     tr = Tracker(human, cams, calibrate_sizes=False)
     errors = [centre_error(human, tr.step(render(human, q, cams)).q, q) for q in motion]
     assert max(errors) < 1.0 and np.mean(errors) < 0.3
+
+
+def test_twin_names_in_the_spellings_skeletons_use():
+    """``left*`` / ``right*`` always; ``l*`` / ``r*`` (CMU), ``*_l`` / ``*_r`` (Unreal),
+    ``*.l`` / ``*.r`` (Blender) only where the other side's name exists."""
+    assert twin_name("leftthigh") == "rightthigh" and twin_name("rightthigh") == "leftthigh"
+    names = {"lhand", "rhand", "lowerback", "thigh_l", "thigh_r", "hand.l", "hand.r", "lhipjoint", "rhipjoint"}
+    assert twin_name("lhand") == "lhand"  # no names to look in: not a twin
+    for a, b in (("lhand", "rhand"), ("thigh_l", "thigh_r"), ("hand.l", "hand.r"), ("lhipjoint", "rhipjoint")):
+        assert twin_name(a, names) == b and twin_name(b, names) == a
+    assert twin_name("lowerback", names | {"rowerback_x"}) == "lowerback"
+    names = ["Hips", "LHipJoint", "RHipJoint", "LeftHip", "RightHip", "lhand", "rhand", "lowerback", "LThumb", "RThumb"]
+    assert sorted(left_right_pairs(names)) == [(1, 2), (3, 4), (5, 6), (8, 9)]  # (left, right) each
+
+
+def _cmu_walker():
+    """CMU's subject 131 imported from its BVH file in tests/data, and its poses (30 Hz)."""
+    from pathlib import Path
+
+    from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
+    from kms2pin.lang import parse_text
+    from kms2pin.robot import Robot
+
+    bvh = read_bvh(Path(__file__).parents[1] / "data" / "cmu_131_01_walk.bvh")
+    imp = import_bvh(bvh, ImportOptions(scale=0.05644, fps=30.0, name="walker"))
+    spec = parse_text(imp.text, "walker.kms")
+    return Robot(spec, spec.system(), "free"), imp.q
+
+
+def test_a_real_subjects_sides_mirror_each_other_within_the_tolerance():
+    """A real skeleton is not symmetric (CMU's subject 131 as imported: the swapped pose's
+    centres up to 3.6 % of the height from the reflected ones, its hands, fingers and hip
+    joints named ``l*`` / ``r*``), yet its twins are found and swapped: every twin pair,
+    those too, and a swap twice gives the pose back.  A spec whose one thigh is 40 %
+    longer has none."""
+    walker, qs = _cmu_walker()
+    symmetry = Symmetry.of(walker)
+    assert symmetry is not None
+    assert {k: v.name for k, v in symmetry.twin.items() if k.lower().startswith(("l", "left"))} == {
+        "LeftHip_joint": "RightHip_joint", "LeftKnee_joint": "RightKnee_joint", "LeftAnkle_joint": "RightAnkle_joint",
+        "LeftToe_joint": "RightToe_joint", "LeftCollar_joint": "RightCollar_joint",
+        "LeftShoulder_joint": "RightShoulder_joint", "LeftElbow_joint": "RightElbow_joint", "lhand_joint": "rhand_joint",
+        "LHipJoint_joint": "RHipJoint_joint", "LFingers_joint": "RFingers_joint", "LThumb_joint": "RThumb_joint"}
+    q = qs[40]
+    back = symmetry.swap(symmetry.swap(q))
+    np.testing.assert_allclose(walker.maximal_coordinates(back)[:, :3], walker.maximal_coordinates(q)[:, :3], atol=1e-9)
+    # the swapped pose's left hand is the reflection of the pose's right hand, within the sides' difference
+    S, root = symmetry.S, pin.XYZQUATToSE3(q[:7])
+    lh, rh = (root.actInv(walker.body_pose(x, n)).translation for x, n in ((symmetry.swap(q), "lhand"), (q, "rhand")))
+    assert np.linalg.norm(lh - S @ rh) < 0.05 * walker.height
+    text = (DIR / "human.kms").read_text()
+    longer = text.replace("Thigh leftThigh(hipHeight - kneeHeight, 0.045*H);",
+                          "Thigh leftThigh(1.4*(hipHeight - kneeHeight), 0.045*H);")
+    assert longer != text
+    assert Symmetry.of(load(longer, root="free")) is None
