@@ -4,12 +4,14 @@ one-camera tracker's alternative hypotheses (the mirror image, the left/right sw
 
 Twins are named ``left*`` / ``right*`` (compared in lower case): bodies such as
 ``leftThigh`` / ``rightThigh``, joints such as ``leftThigh_hip`` / ``rightThigh_hip``; or, where
-both names exist, ``l*`` / ``r*`` (CMU's ``lhand`` / ``rhand``, ``LHipJoint`` / ``RHipJoint``),
-``*_l`` / ``*_r``, ``*.L`` / ``*.R`` or ``*_left`` / ``*_right`` (:func:`twin_name`).
+both names exist, with a side word (``thigh_l`` / ``thigh_r``, and the joint ``thigh_l_joint`` /
+``thigh_r_joint`` an import makes of them) or ``l*`` / ``r*`` (CMU's ``lhand`` / ``rhand``,
+``LHipJoint`` / ``RHipJoint``; :func:`twin_name`).
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Collection, Sequence
 
 import numpy as np
@@ -17,31 +19,37 @@ import pinocchio as pin
 
 from ..robot import Robot
 
-#: the spellings of a side that name a twin only where the other side's name exists
-#: (``lhand`` / ``rhand`` in CMU's skeletons, ``thigh_l`` / ``thigh_r``, ``hand.L`` / ``hand.R``)
-_SIDE_SPELLINGS = (("l", "r", True), ("_l", "_r", False), (".l", ".r", False), ("_left", "_right", False))
+#: the side words that name a twin where the other side's name exists, as a separate word
+#: (``thigh_l_joint`` / ``thigh_r_joint``, ``hand.l`` / ``hand.r``, ``arm_left`` / ``arm_right``)
+_SIDES = {"l": "r", "r": "l", "left": "right", "right": "left"}
+
+
+def _others(name: str) -> list[str]:
+    """The names that would be ``name``'s twin: each side word (split at ``_`` and ``.``)
+    turned to the other side, then the first letter ``l`` <-> ``r`` (CMU's ``lhand``)."""
+    words = re.split(r"([_.])", name)
+    out = ["".join([*words[:k], _SIDES[w], *words[k + 1 :]]) for k, w in enumerate(words) if w in _SIDES]
+    if name[:1] in ("l", "r") and len(name) > 1:
+        out.append(_SIDES[name[0]] + name[1:])
+    return out
+
+
+def _first(name: str, names: Collection[str]) -> str | None:
+    return next((o for o in _others(name) if o in names), None)
 
 
 def twin_name(name: str, names: Collection[str] = ()) -> str:
     """The left/right twin of a lower-case name: ``left*`` <-> ``right*`` always
-    (``leftthigh`` <-> ``rightthigh``); ``l*`` <-> ``r*``, ``*_l`` <-> ``*_r``, ``*.l`` <-> ``*.r``
-    and ``*_left`` <-> ``*_right`` when the other is one of ``names`` (lower case too: the
-    model's names of the same kind).  Itself if it has none."""
+    (``leftthigh`` <-> ``rightthigh``); among ``names`` (lower case too: the model's names
+    of the same kind) also a side word turned (``hip_l_joint`` <-> ``hip_r_joint``,
+    ``arm_left`` <-> ``arm_right``) or the first letter ``l`` <-> ``r`` (``lhand`` <-> ``rhand``),
+    where the two names are each other's first such twin.  Itself if it has none."""
     if name.startswith("left"):
         return "right" + name[4:]
     if name.startswith("right"):
         return "left" + name[5:]
-    for left, right, prefix in _SIDE_SPELLINGS:
-        for a, b in ((left, right), (right, left)):
-            if prefix and name.startswith(a) and len(name) > len(a):
-                other = b + name[len(a):]
-            elif not prefix and name.endswith(a) and len(name) > len(a):
-                other = name[: -len(a)] + b
-            else:
-                continue
-            if other in names:
-                return other
-    return name
+    other = _first(name, names) if names else None
+    return other if other is not None and _first(other, names) == name else name
 
 
 def left_right_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
@@ -57,18 +65,14 @@ def left_right_pairs(names: Sequence[str]) -> list[tuple[int, int]]:
 
 
 def is_left(name: str, twin: str) -> bool:
-    """Whether ``name`` is the left one of the twins ``name`` / ``twin`` (lower case)."""
-    if name.startswith("left") or twin.startswith("right"):
-        return True
-    if name.startswith("right") or twin.startswith("left"):
-        return False
-    return any(name.startswith(a) and twin.startswith(b) if prefix else name.endswith(a) and twin.endswith(b)
-               for a, b, prefix in _SIDE_SPELLINGS)
+    """Whether ``name`` is the left one of the twins ``name`` / ``twin`` (lower case): where
+    they first differ, it has the ``l``."""
+    return next((a == "l" for a, b in zip(name, twin) if a != b), False)
 
 
 def sagittal_mirror(robot: Robot) -> np.ndarray | None:
     """Reflection (3x3, root frame) through the model's left/right plane: its normal is
-    the mean offset of the ``left*`` bodies' centres from their ``right*`` twins at rest.
+    the mean offset of the left bodies' centres from their right twins at rest.
     None if the model has no such pairs."""
     pairs = left_right_pairs(robot.bodies)
     if not pairs:

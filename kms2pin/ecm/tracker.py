@@ -119,7 +119,8 @@ class Tracker:
             raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
         if hyp.swap_hypothesis and self._symmetry is None:
             raise ValueError(
-                "swap_hypothesis needs left/right joints (names left*/right*) whose exchange mirrors the body"
+                "swap_hypothesis needs left/right joints (names such as left*/right*, *_l/*_r) whose exchange mirrors "
+                "the body"
             )
         search = True if lim.limb_search is None else bool(lim.limb_search)
         # without joint limits a swapped leg finds a pose (a knee bent backwards) that fits

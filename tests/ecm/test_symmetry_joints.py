@@ -3,12 +3,14 @@ twins, the limb search on spherical limbs, translations on the angles' scale."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from kms2pin.ecm.camera import Camera
-from kms2pin.ecm.limbs import left_right_pairs, limb_joints, twin_name
+from kms2pin.ecm.limbs import is_left, left_right_pairs, limb_joints, twin_name
 from kms2pin.ecm.limbsearch import LimbSearch
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.prediction import Motion
@@ -140,16 +142,47 @@ def test_the_human_is_tracked_by_three_cameras_as_it_walks_out_of_the_sagittal_p
 
 
 def test_twin_names_in_the_spellings_skeletons_use():
-    """``left*`` / ``right*`` always; ``l*`` / ``r*`` (CMU), ``*_l`` / ``*_r`` (Unreal),
-    ``*.l`` / ``*.r`` (Blender) only where the other side's name exists."""
+    """``left*`` / ``right*`` always; a side word (Unreal's ``thigh_l``, Blender's
+    ``hand.l``, and the ``*_joint`` an import names after them) or the first letter (CMU's
+    ``lhand``) only where the other side's name exists, and only as each other's twins."""
     assert twin_name("leftthigh") == "rightthigh" and twin_name("rightthigh") == "leftthigh"
-    names = {"lhand", "rhand", "lowerback", "thigh_l", "thigh_r", "hand.l", "hand.r", "lhipjoint", "rhipjoint"}
+    names = {"lhand", "rhand", "lowerback", "thigh_l", "thigh_r", "thigh_l_joint", "thigh_r_joint", "hand.l",
+             "hand.r", "lhipjoint", "rhipjoint", "arm_left", "arm_right"}
     assert twin_name("lhand") == "lhand"  # no names to look in: not a twin
-    for a, b in (("lhand", "rhand"), ("thigh_l", "thigh_r"), ("hand.l", "hand.r"), ("lhipjoint", "rhipjoint")):
+    for a, b in (("lhand", "rhand"), ("thigh_l", "thigh_r"), ("thigh_l_joint", "thigh_r_joint"), ("hand.l", "hand.r"),
+                 ("lhipjoint", "rhipjoint"), ("arm_left", "arm_right")):
         assert twin_name(a, names) == b and twin_name(b, names) == a
+        assert is_left(a, b) and not is_left(b, a)
     assert twin_name("lowerback", names | {"rowerback_x"}) == "lowerback"
+    # a side word goes first: rib_l and rib_r are twins, and lib_l, whose first letter
+    # turned gives rib_l, has none (rib_l is not its twin back)
+    ribs = {"rib_l", "rib_r", "lib_l"}
+    assert (twin_name("rib_l", ribs), twin_name("rib_r", ribs), twin_name("lib_l", ribs)) == ("rib_r", "rib_l", "lib_l")
     names = ["Hips", "LHipJoint", "RHipJoint", "LeftHip", "RightHip", "lhand", "rhand", "lowerback", "LThumb", "RThumb"]
     assert sorted(left_right_pairs(names)) == [(1, 2), (3, 4), (5, 6), (8, 9)]  # (left, right) each
+
+
+def test_an_unreal_named_skeleton_has_its_twins(tmp_path):
+    """The CMU walker's joints renamed as Unreal names them (``Hip_l``, ``Knee_r``): the
+    import's joints (``Hip_l_joint``) are paired, and the model has a symmetry."""
+    from pathlib import Path
+
+    from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
+    from kms2pin.lang import parse_text
+    from kms2pin.robot import Robot
+
+    text = (Path(__file__).parents[1] / "data" / "cmu_131_01_walk.bvh").read_text()
+    for side, mark in (("Left", "_l"), ("Right", "_r")):
+        text = re.sub(rf"\b{side}(\w+)", rf"\1{mark}", text)
+    assert "Hip_l" in text and "Left" not in text
+    (tmp_path / "unreal.bvh").write_text(text)
+    bvh = read_bvh(tmp_path / "unreal.bvh")
+    imp = import_bvh(bvh, ImportOptions(scale=0.05644, fps=30.0, name="walker"))
+    spec = parse_text(imp.text, "walker.kms")
+    robot = Robot(spec, spec.system(), "free")
+    symmetry = Symmetry.of(robot)
+    assert symmetry is not None and symmetry.twin["Hip_l_joint"].name == "Hip_r_joint"
+    assert symmetry.twin["Elbow_r_joint"].name == "Elbow_l_joint"
 
 
 def _cmu_walker():
