@@ -59,7 +59,7 @@ class Symmetry:
         self.twin: dict[str, JointCoordinates] = {}
         for low, j in by_name.items():
             t = by_name.get(twin_name(low, by_name))
-            if t is not None and t.kind == j.kind and low != twin_name(low, by_name):
+            if t is not None and t is not j and t.kind == j.kind:
                 self.twin[j.name] = t
         self._frame = {j.name: self._parent_axes(j) for j in robot.joints if j.kind == "spherical"}
         self._rest = {j.name: quaternion_matrix(robot.q_rest[j.idx_q : j.idx_q + 4]) for j in robot.joints

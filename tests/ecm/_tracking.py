@@ -7,14 +7,28 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
-from kms2pin.robot import load
+from kms2pin.lang import parse_text
+from kms2pin.robot import Robot, load
 
 SPECS = ("puma600", "lowerbody", "fullbody", "jplhand")
 DIR = Path(__file__).resolve().parents[2] / "specs"
+
+
+#: 240 frames of CMU subject 131's walk (tests/data/README.md)
+CMU_WALK = Path(__file__).resolve().parents[1] / "data" / "cmu_131_01_walk.bvh"
+
+
+def cmu_walker(path=CMU_WALK):
+    """CMU's subject 131 imported from a BVH file (default: its walk in tests/data; rest:
+    the T-pose), a free root, and its configurations at 30 frames/s."""
+    imp = import_bvh(read_bvh(path), ImportOptions(scale=0.05644, fps=30.0, name="walker"))
+    spec = parse_text(imp.text, "walker.kms")
+    return Robot(spec, spec.system(), "free"), imp.q
 
 
 def _robot(name):

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.mstep import BodyFit
@@ -16,8 +13,7 @@ from kms2pin.ecm.priors import DepthPrior, GroundPrior, RestPrior, UprightPrior
 from kms2pin.ecm.springs import full_update
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
-from kms2pin.lang import parse_text
-from kms2pin.robot import Robot, load
+from kms2pin.robot import load
 
 from ._tracking import (
     DIR,
@@ -25,6 +21,7 @@ from ._tracking import (
     _robot,
     _still_subject,
     centre_error,
+    cmu_walker,
 )
 
 
@@ -438,19 +435,10 @@ def test_a_twist_prior_with_a_free_range_is_a_soft_limit():
     assert sorted(p.free for p in tr.ecm.priors if isinstance(p, TwistPrior)) == pytest.approx(np.radians([30, 90]))
 
 
-def _cmu_walker():
-    """CMU's subject 131 imported from its BVH file in tests/data (rest: the T-pose) and
-    its configurations at 30 frames/s."""
-    bvh = read_bvh(Path(__file__).parents[1] / "data" / "cmu_131_01_walk.bvh")
-    imp = import_bvh(bvh, ImportOptions(scale=0.05644, fps=30.0, name="walker"))
-    spec = parse_text(imp.text, "walker.kms")
-    return Robot(spec, spec.system(), "free"), imp.q
-
-
 def test_rest_prior_pulls_towards_the_starting_pose_with_rest_pose_start():
     """``rest_pose="start"``: the rest prior's pose is the track's q0 (kept over a restart),
     not the spec's rest; a bad value is refused."""
-    robot, qs = _cmu_walker()
+    robot, qs = cmu_walker()
     cams = [Camera.look_at(qs[0][:3] + np.array([5.0, 1.0, 3.0]), qs[0][:3], width=320, height=240, fov_deg=30.0)]
     for which, expected in (("spec", robot.q_rest), ("start", qs[0])):
         tr = Tracker(robot, cams, q0=qs[0], rest_prior=0.01, rest_pose=which, calibrate_sizes=False)
@@ -467,7 +455,7 @@ def test_rest_prior_towards_a_t_pose_pulls_a_seen_walker_off_the_truth():
     arms up, off the truth (measured 4.5 % of the height, fit 0.83); towards the starting
     pose, here the frame's own, it leaves the walker within 1 % (the springs' small
     bias), fitting better."""
-    robot, qs = _cmu_walker()
+    robot, qs = cmu_walker()
     q = qs[30]
     cams = [Camera.look_at(q[:3] + np.array([5.0, 1.0, 3.0]), q[:3], width=320, height=240, fov_deg=30.0)]
     masks = render(robot, q, cams)

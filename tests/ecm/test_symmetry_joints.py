@@ -19,7 +19,7 @@ from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 from kms2pin.robot import load
 
-from ._tracking import DIR, centre_error
+from ._tracking import CMU_WALK, DIR, centre_error, cmu_walker
 
 
 def _joint(robot, name):
@@ -165,38 +165,15 @@ def test_twin_names_in_the_spellings_skeletons_use():
 def test_an_unreal_named_skeleton_has_its_twins(tmp_path):
     """The CMU walker's joints renamed as Unreal names them (``Hip_l``, ``Knee_r``): the
     import's joints (``Hip_l_joint``) are paired, and the model has a symmetry."""
-    from pathlib import Path
-
-    from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
-    from kms2pin.lang import parse_text
-    from kms2pin.robot import Robot
-
-    text = (Path(__file__).parents[1] / "data" / "cmu_131_01_walk.bvh").read_text()
+    text = CMU_WALK.read_text()
     for side, mark in (("Left", "_l"), ("Right", "_r")):
         text = re.sub(rf"\b{side}(\w+)", rf"\1{mark}", text)
     assert "Hip_l" in text and "Left" not in text
     (tmp_path / "unreal.bvh").write_text(text)
-    bvh = read_bvh(tmp_path / "unreal.bvh")
-    imp = import_bvh(bvh, ImportOptions(scale=0.05644, fps=30.0, name="walker"))
-    spec = parse_text(imp.text, "walker.kms")
-    robot = Robot(spec, spec.system(), "free")
+    robot, _ = cmu_walker(tmp_path / "unreal.bvh")
     symmetry = Symmetry.of(robot)
     assert symmetry is not None and symmetry.twin["Hip_l_joint"].name == "Hip_r_joint"
     assert symmetry.twin["Elbow_r_joint"].name == "Elbow_l_joint"
-
-
-def _cmu_walker():
-    """CMU's subject 131 imported from its BVH file in tests/data, and its poses (30 Hz)."""
-    from pathlib import Path
-
-    from kms2pin.bvh import ImportOptions, import_bvh, read_bvh
-    from kms2pin.lang import parse_text
-    from kms2pin.robot import Robot
-
-    bvh = read_bvh(Path(__file__).parents[1] / "data" / "cmu_131_01_walk.bvh")
-    imp = import_bvh(bvh, ImportOptions(scale=0.05644, fps=30.0, name="walker"))
-    spec = parse_text(imp.text, "walker.kms")
-    return Robot(spec, spec.system(), "free"), imp.q
 
 
 def test_a_real_subjects_sides_mirror_each_other_within_the_tolerance():
@@ -205,7 +182,7 @@ def test_a_real_subjects_sides_mirror_each_other_within_the_tolerance():
     joints named ``l*`` / ``r*``), yet its twins are found and swapped: every twin pair,
     those too, and a swap twice gives the pose back.  A spec whose one thigh is 40 %
     longer has none."""
-    walker, qs = _cmu_walker()
+    walker, qs = cmu_walker()
     symmetry = Symmetry.of(walker)
     assert symmetry is not None
     assert {k: v.name for k, v in symmetry.twin.items() if k.lower().startswith(("l", "left"))} == {
