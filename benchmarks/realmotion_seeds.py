@@ -71,11 +71,12 @@ def report(label: str, rows: list[dict]) -> str:
         return float(np.median([r[key] for r in rows]))
 
     sd = f", sd {means.std(ddof=1):.1f}" if len(means) > 1 else ""
+    clean = sum(r["over120"] == 0 for r in rows)  # seeds with no frame above 120 mm
     return (f"{label}\n    mean error per seed: {' '.join(f'{m:.1f}' for m in means)}\n"
             f"    over the seeds: mean {means.mean():.1f} mm, median {np.median(means):.1f}, range "
             f"{means.min():.1f}-{means.max():.1f}{sd}; worst frame {med('worst'):.0f} (the seeds' median; "
             f"{min(r['worst'] for r in rows):.0f}-{max(r['worst'] for r in rows):.0f}), frames above 120 mm "
-            f"{med('over120'):.0f} (median; none on {sum(r['over120'] == 0 for r in rows)} of {len(rows)} seeds); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
+            f"{med('over120'):.0f} (median; none on {clean} of {len(rows)} seeds); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2'] for r in rows])):.1f}, elbows {np.sqrt(np.mean([r['elbows2'] for r in rows])):.1f} "
             f"deg; fit tracked {med('fit'):.3f}, floor {med('fit_floor'):.3f} (the floor better on "
             f"{med('floor_better'):.0%} of the frames); {med('fps'):.1f} frames/s (process time)")
