@@ -1152,6 +1152,9 @@ typedef struct {
     double centre[3];
     double inv;
     int has_w;
+    /* fit_bodies' views: contiguous arrays it does not hold (pd NULL: the Bufs above) */
+    const double *pd, *py, *po;
+    Py_ssize_t n;
 } View;
 
 static void release_views(View *v, Py_ssize_t n)
@@ -1351,6 +1354,15 @@ static void view_accumulate(const View *v, const double *A, const double *t, int
 {
     double e[3] = {v->centre[0] - t[0], v->centre[1] - t[1], v->centre[2] - t[2]}, Ae[3];
     for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    if (v->pd != NULL) { /* fit_bodies' views: contiguous, no weights, always with jac */
+        double out[29];
+        view_accumulate_jac(v->n, v->pd, v->py, v->po, NULL, A, e, Ae, v->inv, out);
+        *cost_io += out[0];
+        *evid_io += out[1];
+        for (int a = 0; a < 6; a++) g6[a] += out[2 + a];
+        for (int m = 0; m < 21; m++) Hu[m] += out[8 + m];
+        return;
+    }
     Py_ssize_t N = v->dirs.view.shape[0];
     if (jac && contiguous_n3(&v->dirs) && contiguous_1d(&v->y) && contiguous_1d(&v->o) &&
         (!v->has_w || contiguous_1d(&v->w))) {
@@ -1841,8 +1853,13 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
         release(b, 7);
         return NULL;
     }
+    /* per body, only its supported columns (idx: m of them) are gathered, in order: the
+     * same sums as over every column with the others skipped */
     double *Jb = (double *)PyMem_Malloc(sizeof(double) * (size_t)(12 * nv + 1));
-    if (Jb == NULL) {
+    Py_ssize_t *idx = (Py_ssize_t *)PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(nv + 1));
+    if (Jb == NULL || idx == NULL) {
+        PyMem_Free(Jb);
+        PyMem_Free(idx);
         release(b, 7);
         return PyErr_NoMemory();
     }
@@ -1855,7 +1872,8 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
         double p[3] = {AT(b[1], i, 0), AT(b[1], i, 1), AT(b[1], i, 2)};
         double qa[4] = {AT(b[1], i, 3), AT(b[1], i, 4), AT(b[1], i, 5), AT(b[1], i, 6)};
         double qb[4] = {AT(b[2], i, 3), AT(b[2], i, 4), AT(b[2], i, 5), AT(b[2], i, 6)};
-        double e[6];
+        double e[6], Ki[36];
+        for (int c = 0; c < 36; c++) Ki[c] = AT(b[3], i, c);
         for (int c = 0; c < 3; c++) e[c] = p[c] - AT(b[2], i, c);
         /* relative rotation qa (x) conj(qb), then its rotation vector (angle in [0, pi]) */
         double bxv[3], v[3];
@@ -1870,36 +1888,40 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
         double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
         for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
         for (int r = 0; r < 6; r++)
-            for (int c = 0; c < 6; c++) energy += 0.5 * e[r] * AT(b[3], i, 6 * r + c) * e[c];
-        /* J_i: rows (linear at p; angular), supported columns only */
+            for (int c = 0; c < 6; c++) energy += 0.5 * e[r] * Ki[6 * r + c] * e[c];
+        /* J_i: rows (linear at p; angular), supported columns only (k-th: column idx[k]) */
+        Py_ssize_t m = 0;
         for (Py_ssize_t a = 0; a < nv; a++) {
             double sa = AT(b[4], i, a);
+            if (sa == 0.0) continue;
             double om[3] = {AT(b[0], 3, a), AT(b[0], 4, a), AT(b[0], 5, a)}, oxp[3];
             cross(om, p, oxp);
             for (int c = 0; c < 3; c++) {
-                Jb[c * nv + a] = sa * (AT(b[0], c, a) + oxp[c]);
-                Jb[(3 + c) * nv + a] = sa * om[c];
+                Jb[c * nv + m] = sa * (AT(b[0], c, a) + oxp[c]);
+                Jb[(3 + c) * nv + m] = sa * om[c];
             }
+            idx[m++] = a;
         }
         for (int r = 0; r < 6; r++)
-            for (Py_ssize_t a = 0; a < nv; a++) {
+            for (Py_ssize_t k = 0; k < m; k++) {
                 double s = 0.0;
-                for (int c = 0; c < 6; c++) s += AT(b[3], i, 6 * r + c) * Jb[c * nv + a];
-                KJ[r * nv + a] = s;
+                for (int c = 0; c < 6; c++) s += Ki[6 * r + c] * Jb[c * nv + k];
+                KJ[r * nv + k] = s;
             }
-        for (Py_ssize_t a = 0; a < nv; a++) {
-            if (AT(b[4], i, a) == 0.0) continue;
+        for (Py_ssize_t k = 0; k < m; k++) {
             double ga = 0.0;
-            for (int r = 0; r < 6; r++) ga += KJ[r * nv + a] * e[r];
-            V(b[6], a) += ga;
-            for (Py_ssize_t c = 0; c < nv; c++) {
-                if (AT(b[4], i, c) == 0.0) continue;
+            for (int r = 0; r < 6; r++) ga += KJ[r * nv + k] * e[r];
+            V(b[6], idx[k]) += ga;
+            double Jk[6];
+            for (int r = 0; r < 6; r++) Jk[r] = Jb[r * nv + k];
+            for (Py_ssize_t l = 0; l < m; l++) {
                 double s = 0.0;
-                for (int r = 0; r < 6; r++) s += Jb[r * nv + a] * KJ[r * nv + c];
-                AT(b[5], a, c) += s;
+                for (int r = 0; r < 6; r++) s += Jk[r] * KJ[r * nv + l];
+                AT(b[5], idx[k], idx[l]) += s;
             }
         }
     }
+    PyMem_Free(idx);
     PyMem_Free(Jb);
     release(b, 7);
     return PyFloat_FromDouble(energy);
@@ -1987,6 +2009,71 @@ static int chol6(const double *M, double shift, const double *g, double *x)
     return 1;
 }
 
+/* the damped Gauss-Newton of fit_body from (R, t) (updated in place) over nv views:
+ * sets H (6x6, row-major) at the result, *evidence_out and *cost_out */
+static void fit_core(const View *views, Py_ssize_t nv, double *R, double *t, const double *inner, long iterations,
+                     double damping, double max_step, double *H, double *evidence_out, double *cost_out)
+{
+    double cost = 0.0, evidence = 0.0, grad[6] = {0};
+    for (int m = 0; m < 36; m++) H[m] = 0.0;
+    if (nv > 0) views_eval(views, nv, R, t, inner, 1, &cost, &evidence, grad, H);
+    int any = 0;
+    for (int m = 0; m < 36; m++) any |= H[m] != 0.0;
+    if (any) {
+        double size = (inner[0] + inner[1] + inner[2]) / 3.0;
+        double S[6] = {size, size, size, 1.0, 1.0, 1.0}, Hn[36], offset[6] = {0};
+        double dmax = 0.0;
+        for (int a = 0; a < 6; a++) dmax = fmax(dmax, S[a] * H[7 * a] * S[a]);
+        double prior = damping * fmax(dmax, 1e-12);
+        double lam = 1e-3;
+        for (long it = 0; it < iterations; it++) {
+            double gn[6], hmax = -INFINITY;
+            for (int a = 0; a < 6; a++) {
+                for (int c = 0; c < 6; c++) Hn[6 * a + c] = S[a] * H[6 * a + c] * S[c];
+                gn[a] = S[a] * grad[a] + prior * offset[a] / S[a];
+                hmax = fmax(hmax, Hn[7 * a]);
+            }
+            int improved = 0;
+            for (int tries = 0; tries < 6; tries++) {
+                double stepn[6], step[6];
+                if (!chol6(Hn, prior + lam * hmax, gn, stepn)) break;
+                if (max_step > 0.0) {
+                    double big = fmax(sqrt(dot3(stepn, stepn)), sqrt(dot3(stepn + 3, stepn + 3)));
+                    double f = fmin(1.0, max_step / fmax(big, 1e-300));
+                    for (int a = 0; a < 6; a++) stepn[a] *= f;
+                }
+                double R2[9], t2[3], c2, e2, g2[6], H2[36], p_old = 0.0, p_new = 0.0, off2[6];
+                for (int a = 0; a < 6; a++) {
+                    step[a] = stepn[a] * S[a];
+                    off2[a] = offset[a] + step[a];
+                    p_old += (offset[a] / S[a]) * (offset[a] / S[a]);
+                    p_new += (off2[a] / S[a]) * (off2[a] / S[a]);
+                }
+                memcpy(R2, R, sizeof(R2));
+                rotate_by(step + 3, R2);
+                for (int r = 0; r < 3; r++) t2[r] = t[r] + step[r];
+                views_eval(views, nv, R2, t2, inner, 1, &c2, &e2, g2, H2);
+                if (0.5 * c2 + 0.5 * prior * p_new <= 0.5 * cost + 0.5 * prior * p_old) {
+                    memcpy(R, R2, sizeof(R2));
+                    memcpy(t, t2, sizeof(t2));
+                    memcpy(offset, off2, sizeof(off2));
+                    memcpy(grad, g2, sizeof(g2));
+                    memcpy(H, H2, sizeof(H2));
+                    cost = c2;
+                    evidence = e2;
+                    lam = fmax(lam * 0.3, 1e-6);
+                    improved = 1;
+                    break;
+                }
+                lam *= 10.0;
+            }
+            if (!improved) break;
+        }
+    }
+    *evidence_out = evidence;
+    *cost_out = cost;
+}
+
 /* fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out)
  *     -> (evidence, cost)
  * views: list of (dirs (N,3), camera centre (3,), inv = 1/(2 delta), y, o, weight|None).
@@ -2060,62 +2147,9 @@ static PyObject *fit_body(PyObject *self, PyObject *const *args, Py_ssize_t narg
         inner[r] = V(b[2], r);
         for (int c = 0; c < 3; c++) R[3 * r + c] = AT(b[0], r, c);
     }
-    double cost = 0.0, evidence = 0.0, grad[6] = {0}, H[36] = {0};
+    double cost = 0.0, evidence = 0.0, H[36];
     Py_BEGIN_ALLOW_THREADS
-    if (nv > 0) views_eval(views, nv, R, t, inner, 1, &cost, &evidence, grad, H);
-    int any = 0;
-    for (int m = 0; m < 36; m++) any |= H[m] != 0.0;
-    if (any) {
-        double size = (inner[0] + inner[1] + inner[2]) / 3.0;
-        double S[6] = {size, size, size, 1.0, 1.0, 1.0}, Hn[36], offset[6] = {0};
-        double dmax = 0.0;
-        for (int a = 0; a < 6; a++) dmax = fmax(dmax, S[a] * H[7 * a] * S[a]);
-        double prior = damping * fmax(dmax, 1e-12);
-        double lam = 1e-3;
-        for (long it = 0; it < iterations; it++) {
-            double gn[6], hmax = -INFINITY;
-            for (int a = 0; a < 6; a++) {
-                for (int c = 0; c < 6; c++) Hn[6 * a + c] = S[a] * H[6 * a + c] * S[c];
-                gn[a] = S[a] * grad[a] + prior * offset[a] / S[a];
-                hmax = fmax(hmax, Hn[7 * a]);
-            }
-            int improved = 0;
-            for (int tries = 0; tries < 6; tries++) {
-                double stepn[6], step[6];
-                if (!chol6(Hn, prior + lam * hmax, gn, stepn)) break;
-                if (max_step > 0.0) {
-                    double big = fmax(sqrt(dot3(stepn, stepn)), sqrt(dot3(stepn + 3, stepn + 3)));
-                    double f = fmin(1.0, max_step / fmax(big, 1e-300));
-                    for (int a = 0; a < 6; a++) stepn[a] *= f;
-                }
-                double R2[9], t2[3], c2, e2, g2[6], H2[36], p_old = 0.0, p_new = 0.0, off2[6];
-                for (int a = 0; a < 6; a++) {
-                    step[a] = stepn[a] * S[a];
-                    off2[a] = offset[a] + step[a];
-                    p_old += (offset[a] / S[a]) * (offset[a] / S[a]);
-                    p_new += (off2[a] / S[a]) * (off2[a] / S[a]);
-                }
-                memcpy(R2, R, sizeof(R2));
-                rotate_by(step + 3, R2);
-                for (int r = 0; r < 3; r++) t2[r] = t[r] + step[r];
-                views_eval(views, nv, R2, t2, inner, 1, &c2, &e2, g2, H2);
-                if (0.5 * c2 + 0.5 * prior * p_new <= 0.5 * cost + 0.5 * prior * p_old) {
-                    memcpy(R, R2, sizeof(R2));
-                    memcpy(t, t2, sizeof(t2));
-                    memcpy(offset, off2, sizeof(off2));
-                    memcpy(grad, g2, sizeof(g2));
-                    memcpy(H, H2, sizeof(H2));
-                    cost = c2;
-                    evidence = e2;
-                    lam = fmax(lam * 0.3, 1e-6);
-                    improved = 1;
-                    break;
-                }
-                lam *= 10.0;
-            }
-            if (!improved) break;
-        }
-    }
+    fit_core(views, nv, R, t, inner, iterations, damping, max_step, H, &evidence, &cost);
     Py_END_ALLOW_THREADS
     for (int r = 0; r < 3; r++) {
         V(b[4], r) = t[r];
@@ -2127,6 +2161,110 @@ static PyObject *fit_body(PyObject *self, PyObject *const *args, Py_ssize_t narg
     PyMem_Free(views);
     release(b, 6);
     return Py_BuildValue("(dd)", evidence, cost);
+}
+
+/* fit_bodies(cams, inv, seen, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out, out)
+ * fit_body of every body of one E-step (kms2pin.ecm.mstep.fit_packed), the views packed as
+ * estep_camera makes them: cams, per camera, (dirs (N,3), y (N,), o (N,), offset (n+1,),
+ * centre (3,)), body i's pixels at offset[i]..offset[i+1]; inv (ncam, n) = 1/(2 delta);
+ * seen (ncam, n) nonzero where a camera sees the body (its views in camera order, no
+ * weights); R (n,9), t (n,3), inner (n,3) the start poses; sets R_out (n,9), t_out (n,3),
+ * H_out (n,36) and out (n,2) = (evidence, cost). */
+static PyObject *fit_bodies(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 13 || !PyList_Check(args[0])) {
+        PyErr_SetString(PyExc_TypeError,
+                        "fit_bodies(cams, inv, seen, R, t, inner, iterations, damping, max_step, R, t, H, out)");
+        return NULL;
+    }
+    Py_ssize_t nc = PyList_GET_SIZE(args[0]);
+    Buf *cb = (Buf *)PyMem_Calloc((size_t)(5 * nc + 1), sizeof(Buf));
+    Buf b[9];
+    memset(b, 0, sizeof(b));
+    View *views = (View *)PyMem_Calloc((size_t)(nc + 1), sizeof(View));
+    int ok = cb != NULL && views != NULL;
+    if (!ok) PyErr_NoMemory();
+    ok = ok && get_buf(args[3], &b[0], 0, "R") == 0 && check_2d(&b[0], -1, 9, "R") == 0;
+    Py_ssize_t n = ok ? b[0].view.shape[0] : 0;
+    ok = ok && get_buf(args[1], &b[1], 0, "inv") == 0 && check_2d(&b[1], nc, n, "inv") == 0 &&
+         get_buf(args[2], &b[2], 0, "seen") == 0 && check_2d(&b[2], nc, n, "seen") == 0 &&
+         get_buf(args[4], &b[3], 0, "t") == 0 && check_2d(&b[3], n, 3, "t") == 0 &&
+         get_buf(args[5], &b[4], 0, "inner") == 0 && check_2d(&b[4], n, 3, "inner") == 0 &&
+         get_buf(args[9], &b[5], 1, "R_out") == 0 && check_2d(&b[5], n, 9, "R_out") == 0 &&
+         get_buf(args[10], &b[6], 1, "t_out") == 0 && check_2d(&b[6], n, 3, "t_out") == 0 &&
+         get_buf(args[11], &b[7], 1, "H_out") == 0 && check_2d(&b[7], n, 36, "H_out") == 0 &&
+         get_buf(args[12], &b[8], 1, "out") == 0 && check_2d(&b[8], n, 2, "out") == 0;
+    for (Py_ssize_t c = 0; ok && c < nc; c++) {
+        PyObject *tup = PyList_GET_ITEM(args[0], c);
+        if (!PyTuple_Check(tup) || PyTuple_GET_SIZE(tup) != 5) {
+            PyErr_SetString(PyExc_TypeError, "a camera is (dirs, y, o, offset, centre)");
+            ok = 0;
+            break;
+        }
+        Buf *k = cb + 5 * c;
+        ok = get_buf(PyTuple_GET_ITEM(tup, 0), &k[0], 0, "dirs") == 0 && check_2d(&k[0], -1, 3, "dirs") == 0 &&
+             contiguous_n3(&k[0]);
+        Py_ssize_t N = ok ? k[0].view.shape[0] : 0;
+        ok = ok && vec_arg(PyTuple_GET_ITEM(tup, 1), &k[1], N, 0, "y") == 0 && contiguous_1d(&k[1]) &&
+             vec_arg(PyTuple_GET_ITEM(tup, 2), &k[2], N, 0, "o") == 0 && contiguous_1d(&k[2]) &&
+             vec_arg(PyTuple_GET_ITEM(tup, 3), &k[3], n + 1, 0, "offset") == 0 &&
+             vec_arg(PyTuple_GET_ITEM(tup, 4), &k[4], 3, 0, "centre") == 0;
+        for (Py_ssize_t i = 0; ok && i < n; i++) {
+            double lo = V(k[3], i), hi = V(k[3], i + 1);
+            if (!(lo >= 0 && hi >= lo && hi <= (double)N)) {
+                PyErr_SetString(PyExc_ValueError, "a body's offsets do not fit its camera's pixels");
+                ok = 0;
+            }
+        }
+        if (!ok && !PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "dirs, y and o must be contiguous");
+    }
+    long iterations = ok ? PyLong_AsLong(args[6]) : 0;
+    double damping = ok ? PyFloat_AsDouble(args[7]) : 0.0;
+    double max_step = ok ? PyFloat_AsDouble(args[8]) : 0.0;
+    if (ok && PyErr_Occurred()) ok = 0;
+    if (!ok) {
+        if (cb != NULL) release(cb, (int)(5 * nc));
+        PyMem_Free(cb);
+        PyMem_Free(views);
+        release(b, 9);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t nv = 0;
+        for (Py_ssize_t c = 0; c < nc; c++) {
+            if (AT(b[2], c, i) == 0.0) continue;
+            const Buf *k = cb + 5 * c;
+            Py_ssize_t off = (Py_ssize_t)V(k[3], i), end = (Py_ssize_t)V(k[3], i + 1);
+            View *v = &views[nv++];
+            memset(v, 0, sizeof(*v));
+            v->pd = (const double *)k[0].view.buf + 3 * off;
+            v->py = (const double *)k[1].view.buf + off;
+            v->po = (const double *)k[2].view.buf + off;
+            v->n = end - off;
+            for (int r = 0; r < 3; r++) v->centre[r] = V(k[4], r);
+            v->inv = AT(b[1], c, i);
+        }
+        double R[9], t[3], inner[3], H[36], evidence, cost;
+        for (int r = 0; r < 9; r++) R[r] = AT(b[0], i, r);
+        for (int r = 0; r < 3; r++) {
+            t[r] = AT(b[3], i, r);
+            inner[r] = AT(b[4], i, r);
+        }
+        fit_core(views, nv, R, t, inner, iterations, damping, max_step, H, &evidence, &cost);
+        for (int r = 0; r < 9; r++) AT(b[5], i, r) = R[r];
+        for (int r = 0; r < 3; r++) AT(b[6], i, r) = t[r];
+        for (int m = 0; m < 36; m++) AT(b[7], i, m) = H[m];
+        AT(b[8], i, 0) = evidence;
+        AT(b[8], i, 1) = cost;
+    }
+    Py_END_ALLOW_THREADS
+    release(cb, (int)(5 * nc));
+    PyMem_Free(cb);
+    PyMem_Free(views);
+    release(b, 9);
+    Py_RETURN_NONE;
 }
 
 /* body_boxes(R (n,9), t (n,3), inner (n,3), Rwc (3,3), centre (3,), K (3,3), delta_px,
@@ -2341,6 +2479,8 @@ static PyMethodDef methods[] = {
      "estep_camera(rays, A, e, inv, box, offset, mask, log_free, dirs, sp, o, y): one camera's E-step"},
     {"fit_body", (PyCFunction)(void (*)(void))fit_body, METH_FASTCALL,
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
+    {"fit_bodies", (PyCFunction)(void (*)(void))fit_bodies, METH_FASTCALL,
+     "fit_bodies(cams, inv, seen, R, t, inner, iterations, damping, max_step, R, t, H, out): every body's M-step"},
     {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,
      "pose_springs(J, X, T, K, S, A, g) -> energy: the tracker's full-spring static update system"},
     {"body_boxes", (PyCFunction)(void (*)(void))body_boxes, METH_FASTCALL,

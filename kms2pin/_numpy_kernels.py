@@ -33,6 +33,7 @@ __all__ = [
     "estep_body",
     "estep_camera",
     "estep_view",
+    "fit_bodies",
     "fit_body",
     "frame_coordinates",
     "hold_limits",
@@ -551,6 +552,23 @@ def fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_
                 break
     R_out[:], t_out[:], H_out[:] = R, t, H
     return evidence, cost
+
+
+def fit_bodies(cams, inv, seen, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out, out) -> None:
+    """:func:`fit_body` of every body of one E-step, its views packed per camera as
+    ``(dirs, y, o, offset, centre)`` (body i's pixels ``offset[i]:offset[i + 1]``), with
+    ``inv[c, i] = 1/(2δ)`` and ``seen[c, i]`` nonzero where camera c sees body i; start
+    poses ``R`` (n, 9), ``t`` (n, 3); sets ``R_out`` (n, 9), ``t_out``, ``H_out`` (n, 36)
+    and ``out`` (n, 2) = (evidence, cost)."""
+    for i in range(len(R)):
+        views = []
+        for c, (dirs, y, o, offset, centre) in enumerate(cams):
+            if seen[c, i]:
+                a, b = int(offset[i]), int(offset[i + 1])
+                views.append((dirs[a:b], centre, float(inv[c, i]), y[a:b], o[a:b], None))
+        Ri, ti, Hi = np.empty((3, 3)), np.empty(3), np.empty((6, 6))
+        out[i] = fit_body(views, R[i].reshape(3, 3), t[i], inner[i], iterations, damping, max_step, Ri, ti, Hi)
+        R_out[i], t_out[i], H_out[i] = Ri.ravel(), ti, Hi.ravel()
 
 
 def body_boxes(R, t, inner, Rwc, centre, K, delta_px, slack_px, width, height, box, delta, status) -> None:

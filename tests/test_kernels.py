@@ -197,6 +197,26 @@ def _fit_body(rng, max_step=-1.0, weighted=False):
     return [views, R, t, inner, 4, 1e-2, max_step, np.empty((3, 3)), np.empty(3), np.empty((6, 6))], (7, 8, 9)
 
 
+def _fit_bodies(rng):
+    """Three bodies' views packed per camera as the E-step leaves them: body 0 seen by
+    both cameras, body 1 by the second only, body 2 by neither (its pose kept)."""
+    bodies = [_fit_body(rng)[0] for _ in range(3)]
+    cams, inv, seen = [], np.zeros((2, 3)), np.zeros((2, 3))
+    for c in range(2):
+        dirs, y, o, offset = [], [], [], [0.0]
+        for i, args in enumerate(bodies):
+            view = args[0][c]
+            if (c, i) in ((0, 0), (1, 0), (1, 1)):
+                dirs.append(view[0]), y.append(view[3]), o.append(view[4])
+                inv[c, i], seen[c, i] = view[2] * (1.0 + 0.1 * i), 1.0
+            offset.append(offset[-1] + (len(view[0]) if seen[c, i] else 0))
+        cams.append((np.ascontiguousarray(np.concatenate(dirs)), np.concatenate(y), np.concatenate(o), np.array(offset), bodies[0][0][c][1]))
+    R = np.array([b[1].ravel() for b in bodies])
+    t, inner = np.array([b[2] for b in bodies]), np.array([b[3] for b in bodies])
+    outs = [np.empty((3, 9)), np.empty((3, 3)), np.empty((3, 36)), np.empty((3, 2))]
+    return [cams, inv, seen, R, t, inner, 4, 1e-2, 0.05, *outs], (9, 10, 11, 12)
+
+
 def _pose_springs(rng):
     n, nv = 6, 10
     B = rng.normal(size=(n, 6, 6))
@@ -347,6 +367,7 @@ CASES: dict[str, Callable] = {
     "estep_view-float64": lambda rng: _estep_view(rng, "float64"),
     "estep_camera": _estep_camera,
     "estep_camera-float64": lambda rng: _estep_camera(rng, "float64"),
+    "fit_bodies": _fit_bodies,
     "fit_body": _fit_body,
     "fit_body-max-step-weighted": lambda rng: _fit_body(rng, max_step=0.02, weighted=True),
     "pose_springs": _pose_springs,
@@ -425,6 +446,42 @@ def test_c_and_numpy_kernels_agree(case):
     if name == "silhouette_counts":
         assert (on[0][[1, 2]] == 0).all() and (on[0][[0, 3]] > 0).all()  # empty groups count nothing
         np.testing.assert_array_equal(oc[0], on[0])
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_fit_bodies_is_fit_body_body_by_body(backend):
+    """The packed M-step gives each body what fit_body gives it from the same views (in
+    camera order), to the last bit; an unseen body keeps its pose with no curvature."""
+    if backend == "c":
+        require_kernels()
+    impl = {n: native.implementations(n)[backend] for n in ("fit_bodies", "fit_body")}
+    args, _ = _fit_bodies(np.random.default_rng(3))
+    cams, inv, seen, R, t, inner = args[:6]
+    impl["fit_bodies"](*args)
+    R_out, t_out, H_out, out = args[9:]
+    for i in range(3):
+        views = [(d[int(off[i]):int(off[i + 1])], centre, inv[c, i], y[int(off[i]):int(off[i + 1])],
+                  o[int(off[i]):int(off[i + 1])], None) for c, (d, y, o, off, centre) in enumerate(cams) if seen[c, i]]
+        Ri, ti, Hi = np.empty((3, 3)), np.empty(3), np.empty((6, 6))
+        ev, cost = impl["fit_body"](views, R[i].reshape(3, 3), t[i], inner[i], 4, 1e-2, 0.05, Ri, ti, Hi)
+        np.testing.assert_array_equal(R_out[i], Ri.ravel())
+        np.testing.assert_array_equal(t_out[i], ti)
+        np.testing.assert_array_equal(H_out[i], Hi.ravel())
+        assert tuple(out[i]) == (ev, cost)
+    assert not np.array_equal(R_out[0], R[0]) and not np.array_equal(t_out[1], t[1])  # seen bodies moved
+    np.testing.assert_array_equal(R_out[2], R[2])
+    assert not H_out[2].any() and tuple(out[2]) == (0.0, 0.0)
+
+
+def test_fit_bodies_refuses_offsets_past_its_pixels():
+    require_kernels()
+    args, _ = _fit_bodies(np.random.default_rng(4))
+    dirs, y, o, offset, centre = args[0][0]
+    bad = offset.copy()
+    bad[-1] = len(dirs) + 5
+    args[0][0] = (dirs, y, o, bad, centre)
+    with pytest.raises(ValueError, match="offsets"):
+        native.implementations("fit_bodies")["c"](*args)
 
 
 @pytest.mark.parametrize("backend", ["c", "numpy"])

@@ -19,7 +19,7 @@ import pinocchio as pin
 
 from ..native import kernels
 from .camera import Camera
-from .mstep import SLACK_PX, BodyImage, BodyView, _frozen, body_box_arrays, body_images, world_rays
+from .mstep import SLACK_PX, BodyImage, BodyView, PackedViews, _frozen, body_box_arrays, body_images, world_rays
 from .projection import BBox
 
 __all__ = ["UnionEStep"]
@@ -73,6 +73,43 @@ class UnionEStep:
                     views[i].append(v)
             self._scratch[c, cam.shape] = log_free
         return views
+
+    def packed(self, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, cameras: Sequence[Camera],
+               masks: Sequence[np.ndarray], delta_px: float) -> PackedViews | None:
+        """The E-step of :meth:`__call__` with every camera in one kernel call, its views
+        left packed for :func:`~kms2pin.ecm.mstep.fit_packed`; None where a camera needs
+        the per-body path (an outlier class, a distorted camera, a body straddling a
+        camera plane, a view above ``max_pixels``)."""
+        if not self.fused or self.outlier > 0 or any(cam.dist is not None for cam in cameras):
+            return None
+        n = len(Rs)
+        boxed = []
+        for cam in cameras:
+            status, boxes, delta = body_box_arrays(cam, Rs, ts, inner, delta_px, SLACK_PX)
+            if (status == 1).any():
+                return None
+            seen = status == 2
+            boxes[~seen] = 0.0
+            counts = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+            if n and counts.max() > self.max_pixels:
+                return None
+            boxed.append((seen, boxes, delta, counts))
+        As = ((Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)).reshape(n, 9)
+        packs, inv, seen_all = [], np.zeros((len(cameras), n)), np.zeros((len(cameras), n))
+        for c, (cam, mask, (seen, boxes, delta, counts)) in enumerate(zip(cameras, masks, boxed)):
+            log_free = self._zeroed(c, cam.shape)
+            offset = np.zeros(n + 1)
+            np.cumsum(counts, out=offset[1:])
+            N = int(offset[-1])
+            dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
+            safe = np.where(seen, delta, 1.0)
+            kernels.estep_camera(world_rays(cam), As, cam.centre - ts, np.where(seen, 0.5 / safe, 1.0), boxes, offset,
+                                 np.ascontiguousarray(mask), log_free, dirs, sp, o, y)
+            self._scratch[c, cam.shape] = log_free
+            packs.append((dirs, y, o, offset, cam.centre))
+            inv[c] = np.where(seen, 1.0 / (2.0 * safe), 0.0)  # the M-step's 1/(2δ), as BodyView's
+            seen_all[c] = seen
+        return PackedViews(packs, inv, seen_all)
 
     def _camera(self, cam, mask, poses, Rs, ts, As, inner, log_free, delta_px) -> list[BodyView | None]:
         """One camera's views, body by body."""

@@ -29,7 +29,7 @@ from ..virtual_work import SpringTerm
 from .camera import Camera
 from .estep import UnionEStep
 from .masks import Views
-from .mstep import BodyView, fit_bodies
+from .mstep import BodyView, fit_bodies, fit_packed
 from .options import TrackerOptions
 from .prediction import Motion, VelocityGain, image_motion, outline_pixels, outline_points
 from .priors import DepthPrior
@@ -81,11 +81,19 @@ class FrameECM:
     def iterate(self, q: np.ndarray, views: Views, delta_px: float, timings: dict) -> np.ndarray:
         """One ECM iteration from ``q``; returns the new configuration."""
         opt = self.options
+        m = opt.mstep
         t0 = time.perf_counter()
-        poses, body_views = self.e_step(q, views.cameras, views.masks, delta_px)
+        poses, Rs, ts = self.poses(q)
+        inner = self.sizes.inner
+        packed = self.estep.packed(Rs, ts, inner, views.cameras, views.masks, delta_px)
+        body_views = None if packed is not None else self.estep(poses, Rs, ts, inner, views.cameras, views.masks,
+                                                                  delta_px)
         t1 = time.perf_counter()
-        fits = fit_bodies(body_views, poses, self.sizes.inner, iterations=opt.mstep.m_iterations,
-                          damping=opt.mstep.damping, max_step=opt.mstep.max_step)
+        if packed is not None:  # the same fits as fit_bodies', in one kernel call
+            fits = fit_packed(packed, Rs, ts, inner, iterations=m.m_iterations, damping=m.damping, max_step=m.max_step)
+        else:
+            fits = fit_bodies(body_views, poses, inner, iterations=m.m_iterations, damping=m.damping,
+                              max_step=m.max_step)
         t2 = time.perf_counter()
         if opt.springs.static == "diagonal":
             q_new = diagonal_update(self.robot, q, fits, opt.springs.stiffness_floor)

@@ -242,6 +242,54 @@ class BodyFit:
     cost: float
 
 
+@dataclass(frozen=True)
+class PackedViews:
+    """One E-step's views of every body as the ``estep_camera`` kernel leaves them (what
+    the bodies' :class:`BodyView` hold, without an object per body and camera):
+    ``cameras``, per camera, ``(dirs (N, 3), y (N,), o (N,), offset (n + 1,), centre (3,))``
+    with body i's pixels at ``offset[i]:offset[i + 1]``; ``inv`` (cameras, n) ``1/(2δ)``;
+    ``seen`` (cameras, n) 1 where the camera sees the body, else 0 (float64)."""
+
+    cameras: list[tuple]
+    inv: np.ndarray
+    seen: np.ndarray
+
+
+@dataclass(frozen=True)
+class PackedFits:
+    """Every body's :class:`BodyFit` as arrays: rotations ``R`` (n, 3, 3) and centres ``t``
+    (n, 3) of the intermediate poses (world), Gauss-Newton matrices ``hessian`` (n, 6, 6),
+    ``evidence`` and ``cost`` (n,)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    hessian: np.ndarray
+    evidence: np.ndarray
+    cost: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.R)
+
+    def __getitem__(self, i: int) -> BodyFit:
+        return BodyFit(pin.SE3(self.R[i], self.t[i]), self.hessian[i], float(self.evidence[i]), float(self.cost[i]))
+
+    def xyzquat(self) -> np.ndarray:
+        """(n, 7) ``[t, x, y, z, w]`` of the poses (``pin.SE3ToXYZQUAT``'s numbers)."""
+        return np.array([pin.SE3ToXYZQUATtuple(pin.SE3(R, t)) for R, t in zip(self.R, self.t)])
+
+
+def fit_packed(views: PackedViews, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, *, iterations: int = 3,
+               damping: float = 1e-3, max_step: float | None = None) -> PackedFits:
+    """:func:`fit_bodies` on packed views (the same fits, in one kernel call), the bodies
+    starting at rotations ``Rs`` (n, 3, 3) and centres ``ts`` (n, 3), semi-axes ``inner``."""
+    n = len(Rs)
+    R, t, H, out = np.empty((n, 9)), np.empty((n, 3)), np.empty((n, 36)), np.empty((n, 2))
+    kernels.fit_bodies(views.cameras, views.inv, views.seen, np.ascontiguousarray(Rs).reshape(n, 9), ts,
+                       np.asarray(inner, dtype=float), int(iterations), float(damping),
+                       -1.0 if max_step is None else float(max_step), R, t, H, out)
+    return PackedFits(R.reshape(n, 3, 3), t, H.reshape(n, 6, 6), out[:, 0], out[:, 1])
+
+
 def body_cost(views: Sequence[BodyView], pose: pin.SE3, inner: np.ndarray, jac: bool):
     """Cost Σ wt r², gradient, Gauss-Newton matrix (6x6) and evidence of one body
     (the evidence and, without ``jac``, the gradient and matrix are 0)."""

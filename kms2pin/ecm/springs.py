@@ -23,30 +23,31 @@ import pinocchio as pin
 
 from ..robot import Robot
 from ..virtual_work import SpringTerm, pose_spring_update, static_update
-from .mstep import BodyFit
+from .mstep import BodyFit, PackedFits
 
 __all__ = ["diagonal_update", "full_update", "pose_springs"]
 
 _I6 = np.arange(6)
 
 
-def pose_springs(fits: Sequence[BodyFit], inner: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray] | None:
+def pose_springs(fits: Sequence[BodyFit] | PackedFits, inner: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Targets (n, 7) ``[t, x, y, z, w]`` and stiffnesses (n, 6, 6) of the full springs:
     each body's M-step matrix plus ``floor`` times the stiffest body's diagonal entry
     (translations scaled by each body's mean semi-axis).  None if no body is seen."""
     n = len(fits)
     S = np.ones((n, 6))
     S[:, :3] = inner.mean(axis=1)[:, None]
-    K = np.array([f.hessian for f in fits])  # (n, 6, 6), a fresh array
+    packed = isinstance(fits, PackedFits)
+    K = fits.hessian.copy() if packed else np.array([f.hessian for f in fits])  # (n, 6, 6), a fresh array
     hmax = float((np.einsum("nii->ni", K) * S**2).max())
     if hmax <= 0:
         return None
     K[:, _I6, _I6] += floor * hmax / S**2
-    T = np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])
+    T = fits.xyzquat() if packed else np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])
     return T, K
 
 
-def full_update(robot: Robot, q: np.ndarray, fits: Sequence[BodyFit], inner: np.ndarray, floor: float,
+def full_update(robot: Robot, q: np.ndarray, fits: Sequence[BodyFit] | PackedFits, inner: np.ndarray, floor: float,
                 iterations: int, terms: Sequence[SpringTerm] = ()) -> np.ndarray:
     """The static update with the full springs (and ``terms``, the priors)."""
     springs = pose_springs(fits, inner, floor)
@@ -65,7 +66,7 @@ def _delta_to_stiffness(H: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return np.r_[np.diag(H[:3, :3]), np.diag(Kth)]
 
 
-def diagonal_update(robot: Robot, q: np.ndarray, fits: Sequence[BodyFit], floor: float) -> np.ndarray:
+def diagonal_update(robot: Robot, q: np.ndarray, fits: Sequence[BodyFit] | PackedFits, floor: float) -> np.ndarray:
     """The static update with the thesis's diagonal springs (eq. 2.33), each the
     diagonal of its M-step matrix in maximal coordinates, relative to the stiffest,
     at least ``floor``."""
