@@ -280,7 +280,8 @@ class ReachSearch:
         for k, c in enumerate(trials):
             self.robot.forward(c)  # the moved bodies' poses only
             for j, f in enumerate(frames):
-                Rs[k, j], ts[k, j] = oMf[f].rotation, oMf[f].translation
+                M = oMf[f]
+                Rs[k, j], ts[k, j] = M.rotation, M.translation
         inter, union = np.zeros(len(trials), dtype=int), np.zeros(len(trials), dtype=int)
         for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
             counts = group_counts(cam, Rs, ts, inner[idx], fg, bg)
