@@ -34,14 +34,17 @@ class UnionEStep:
         outlier, outlier_px: the outlier class (0: off) and its least edge width (pixels).
         fused: do a camera in one kernel call (``estep_camera``) when it can (the same
             views as body by body).
+        pack: let :meth:`packed` leave the views packed for the M-step's one kernel call
+            (False: it returns None, and every iteration makes the views per body).
 
     :attr:`fused_cameras` counts the cameras the last call did in one kernel call.
     """
 
-    def __init__(self, max_pixels: int, outlier: float = 0.0, outlier_px: float = 3.0, fused: bool = True):
+    def __init__(self, max_pixels: int, outlier: float = 0.0, outlier_px: float = 3.0, fused: bool = True,
+                 pack: bool = True):
         self.max_pixels = int(max_pixels)
         self.outlier, self.outlier_px = float(outlier), float(outlier_px)
-        self.fused = bool(fused)
+        self.fused, self.pack = bool(fused), bool(pack)
         self.fused_cameras = 0
         self._scratch: dict[tuple, np.ndarray] = {}
 
@@ -79,8 +82,8 @@ class UnionEStep:
         """The E-step of :meth:`__call__` with every camera in one kernel call, its views
         left packed for :func:`~kms2pin.ecm.mstep.fit_packed`; None where a camera needs
         the per-body path (an outlier class, a distorted camera, a body straddling a
-        camera plane, a view above ``max_pixels``)."""
-        if not self.fused or self.outlier > 0 or any(cam.dist is not None for cam in cameras):
+        camera plane, a view above ``max_pixels``) or ``pack`` is off."""
+        if not (self.fused and self.pack) or self.outlier > 0 or any(cam.dist is not None for cam in cameras):
             return None
         n = len(Rs)
         boxed = []

@@ -156,3 +156,4 @@ def test_the_packed_m_step_gives_the_per_body_fits_to_the_last_bit(backend):
             np.testing.assert_array_equal(a, b)
     assert UnionEStep(10**6, outlier=0.1).packed(Rs, ts, inner, cams, masks, 0.7) is None
     assert UnionEStep(50).packed(Rs, ts, inner, cams, masks, 0.7) is None
+    assert UnionEStep(10**6, pack=False).packed(Rs, ts, inner, cams, masks, 0.7) is None
