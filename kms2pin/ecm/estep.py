@@ -86,31 +86,18 @@ class UnionEStep:
         if not (self.fused and self.pack) or self.outlier > 0 or any(cam.dist is not None for cam in cameras):
             return None
         n = len(Rs)
-        boxed = []
-        for cam in cameras:
-            status, boxes, delta = body_box_arrays(cam, Rs, ts, inner, delta_px, SLACK_PX)
-            if (status == 1).any():
-                return None
-            seen = status == 2
-            boxes[~seen] = 0.0
-            counts = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-            if n and counts.max() > self.max_pixels:
-                return None
-            boxed.append((seen, boxes, delta, counts))
+        boxed = [_boxes(cam, Rs, ts, inner, delta_px) for cam in cameras]
+        if any(b is None or (n and b[3].max() > self.max_pixels) for b in boxed):
+            return None
         As = ((Rs / inner[:, None, :] ** 2) @ Rs.transpose(0, 2, 1)).reshape(n, 9)
         packs, inv, seen_all = [], np.zeros((len(cameras), n)), np.zeros((len(cameras), n))
-        for c, (cam, mask, (seen, boxes, delta, counts)) in enumerate(zip(cameras, masks, boxed)):
+        for c, (cam, mask, box) in enumerate(zip(cameras, masks, boxed)):
             log_free = self._zeroed(c, cam.shape)
-            offset = np.zeros(n + 1)
-            np.cumsum(counts, out=offset[1:])
-            N = int(offset[-1])
-            dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
-            safe = np.where(seen, delta, 1.0)
-            kernels.estep_camera(world_rays(cam), As, cam.centre - ts, np.where(seen, 0.5 / safe, 1.0), boxes, offset,
-                                 np.ascontiguousarray(mask), log_free, dirs, sp, o, y)
+            offset, dirs, sp, o, y = _estep_camera(cam, mask, As, ts, box, log_free)
             self._scratch[c, cam.shape] = log_free
             packs.append((dirs, y, o, offset, cam.centre))
-            inv[c] = np.where(seen, 1.0 / (2.0 * safe), 0.0)  # the M-step's 1/(2δ), as BodyView's
+            seen, _, delta, _ = box
+            inv[c] = np.where(seen, 1.0 / (2.0 * np.where(seen, delta, 1.0)), 0.0)  # the M-step's 1/(2δ), as BodyView's
             seen_all[c] = seen
         return PackedViews(packs, inv, seen_all)
 
@@ -160,21 +147,11 @@ class UnionEStep:
         give; None when a body needs :func:`kms2pin.ecm.mstep.body_image`'s per-body
         path (straddling the camera plane or degenerate)."""
         n = len(Rs)
-        status, boxes, delta = body_box_arrays(cam, Rs, ts, inner, delta_px, SLACK_PX)
-        if (status == 1).any():
+        box = _boxes(cam, Rs, ts, inner, delta_px)
+        if box is None:
             return None
-        seen = status == 2
-        boxes[~seen] = 0.0
-        counts = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-        offset = np.zeros(n + 1)
-        np.cumsum(counts, out=offset[1:])
-        N = int(offset[-1])
-        dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
-        inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
-        kernels.estep_camera(
-            world_rays(cam), As.reshape(n, 9), cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask),
-            log_free, dirs, sp, o, y,
-        )
+        seen, boxes, delta, _ = box
+        offset, dirs, sp, o, y = _estep_camera(cam, mask, As.reshape(n, 9), ts, box, log_free)
         out: list = [None] * n
         ib, off, dl = boxes.astype(int).tolist(), offset.astype(int).tolist(), delta.tolist()
         for i in np.flatnonzero(seen).tolist():
@@ -213,3 +190,33 @@ class UnionEStep:
             return np.ascontiguousarray(a.reshape(rows, cols)[::stride, ::stride]).ravel()
 
         return BodyView(sub, pick(y), pick(o), None if weight is None else pick(weight))
+
+
+def _boxes(cam: Camera, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, delta_px: float) -> tuple | None:
+    """The bodies' boxes in an undistorted camera (:func:`body_box_arrays`) as the
+    ``estep_camera`` kernel takes them: (in view (n,), boxes (n, 4) with those out of view
+    emptied, edge widths (n,), pixel counts (n,)); None when a body needs the per-body
+    path (straddling the camera plane or degenerate)."""
+    status, boxes, delta = body_box_arrays(cam, Rs, ts, inner, delta_px, SLACK_PX)
+    if (status == 1).any():
+        return None
+    seen = status == 2
+    boxes[~seen] = 0.0
+    return seen, boxes, delta, (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+
+
+def _estep_camera(cam: Camera, mask: np.ndarray, As: np.ndarray, ts: np.ndarray, box: tuple,
+                  log_free: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One camera's E-step in one ``estep_camera`` call over the :func:`_boxes` ``box``
+    (metrics ``As`` (n, 9), centres ``ts``), ``log_free`` its zeroed union image (zeroed
+    again after): (offsets (n + 1,), then each body's pixels one after the other: rays
+    (N, 3), ``softplus(h)``, ``o``, ``y``)."""
+    seen, boxes, delta, counts = box
+    offset = np.zeros(len(ts) + 1)
+    np.cumsum(counts, out=offset[1:])
+    N = int(offset[-1])
+    dirs, sp, o, y = np.empty((N, 3)), np.empty(N), np.empty(N), np.empty(N)
+    inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
+    kernels.estep_camera(world_rays(cam), As, cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask), log_free,
+                         dirs, sp, o, y)
+    return offset, dirs, sp, o, y

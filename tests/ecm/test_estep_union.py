@@ -96,18 +96,24 @@ def test_wide_edge_iterations_run_on_binned_masks_and_the_pose_is_recovered(monk
             Tracker(robot, cams, coarse_delta_px=bad)
 
 
-def test_the_one_call_e_step_gives_the_per_body_kernels_views(backend):
-    """UnionEStep runs a camera in one kernel call (estep_camera) unless a body needs the
-    per-body path; both give the same views to the last bit, and leave the scratch
-    image zeroed."""
+def _scene(seed: int):
+    """The full body at a random pose, its two cameras and masks of another random pose:
+    (robot, cameras, masks, body poses, their rotations and centres, inner semi-axes)."""
     robot = _robot("fullbody")
     cams = _cams(robot)
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed)
     q = robot.random_configuration(rng, 30)
     masks = render(robot, robot.random_configuration(rng, 30), cams)
     poses = robot.body_poses(q)
     Rs, ts = pose_arrays(poses)
-    inner = np.array([robot.inner(b) for b in robot.bodies])
+    return robot, cams, masks, poses, Rs, ts, np.array([robot.inner(b) for b in robot.bodies])
+
+
+def test_the_one_call_e_step_gives_the_per_body_kernels_views(backend):
+    """UnionEStep runs a camera in one kernel call (estep_camera) unless a body needs the
+    per-body path; both give the same views to the last bit, and leave the scratch
+    image zeroed."""
+    robot, cams, masks, poses, Rs, ts, inner = _scene(5)
     for ms, cs, delta in ((masks, cams, 0.7), ([bin_mask(m) for m in masks], [c.binned(2) for c in cams], 1.4)):
         one = UnionEStep(10**6)
         fused = one(poses, Rs, ts, inner, cs, ms, delta)
@@ -130,14 +136,7 @@ def test_the_packed_m_step_gives_the_per_body_fits_to_the_last_bit(backend):
     views and fit_body give, and the same springs; the scratch images are left zeroed.
     Where the per-body path is needed (an outlier class, a view above max_pixels) there
     is no packed E-step."""
-    robot = _robot("fullbody")
-    cams = _cams(robot)
-    rng = np.random.default_rng(7)
-    q = robot.random_configuration(rng, 30)
-    masks = render(robot, robot.random_configuration(rng, 30), cams)
-    poses = robot.body_poses(q)
-    Rs, ts = pose_arrays(poses)
-    inner = np.array([robot.inner(b) for b in robot.bodies])
+    robot, cams, masks, poses, Rs, ts, inner = _scene(7)
     for ms, cs, delta in ((masks, cams, 0.7), ([bin_mask(m) for m in masks], [c.binned(2) for c in cams], 1.4)):
         one = UnionEStep(10**6)
         packed = one.packed(Rs, ts, inner, cs, ms, delta)
