@@ -2456,6 +2456,96 @@ static PyObject *twist_prior(PyObject *self, PyObject *const *args, Py_ssize_t n
     return PyFloat_FromDouble(0.5 * k * sum);
 }
 
+/* spring_targets(R, t, H, inner, floor, T, K) -> hmax
+ *
+ * The full springs' targets and stiffnesses from the M-step fits (kms2pin.ecm.springs):
+ * T[i] = [t_i, x, y, z, w] of rotation R_i (n, 9 row-major) by Eigen's (Pinocchio's
+ * SE3ToXYZQUAT's) own formula, term for term, so the numbers are Pinocchio's to the last
+ * bit; K = H (n, 36, 6x6 row-major) plus floor * hmax / S_d^2 on each diagonal entry d,
+ * S_d each body's mean semi-axis for the translations and 1 for the rotations, hmax the
+ * largest H_dd * S_d^2 (returned; NaN if any is, -inf for no body).  K is H where hmax <= 0.
+ */
+static PyObject *spring_targets(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "spring_targets(R, t, H, inner, floor, T, K)");
+        return NULL;
+    }
+    double floor_ = PyFloat_AsDouble(args[4]);
+    if (PyErr_Occurred()) return NULL;
+    Buf b[7];
+    memset(b, 0, sizeof(b));
+    static const char *names[7] = {"R", "t", "H", "inner", "", "T", "K"};
+    for (int i = 0; i < 7; i++) {
+        if (i == 4) continue;
+        if (get_buf(args[i], &b[i], i >= 5, names[i]) < 0) {
+            release(b, 7);
+            return NULL;
+        }
+    }
+    Py_ssize_t n = b[0].view.ndim == 2 ? b[0].view.shape[0] : -1;
+    if (n < 0 || check_2d(&b[0], n, 9, "R") || check_2d(&b[1], n, 3, "t") || check_2d(&b[2], n, 36, "H") ||
+        check_2d(&b[3], n, 3, "inner") || check_2d(&b[5], n, 7, "T") || check_2d(&b[6], n, 36, "K")) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "R must be (n, 9)");
+        release(b, 7);
+        return NULL;
+    }
+    double hmax = -INFINITY;
+    int nan = 0;
+    for (Py_ssize_t i = 0; i < n && !nan; i++) {
+        double s = (AT(b[3], i, 0) + AT(b[3], i, 1) + AT(b[3], i, 2)) / 3.0;
+        for (int d = 0; d < 6; d++) {
+            double sd = d < 3 ? s : 1.0;
+            double v = AT(b[2], i, 7 * d) * (sd * sd);
+            if (v != v) {
+                nan = 1;
+                break;
+            }
+            if (v > hmax) hmax = v;
+        }
+    }
+    if (nan) hmax = NAN;
+    double c = floor_ * hmax;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double s = (AT(b[3], i, 0) + AT(b[3], i, 1) + AT(b[3], i, 2)) / 3.0;
+        for (int e = 0; e < 36; e++) AT(b[6], i, e) = AT(b[2], i, e);
+        if (!(hmax <= 0.0)) {
+            for (int d = 0; d < 6; d++) {
+                double sd = d < 3 ? s : 1.0;
+                AT(b[6], i, 7 * d) += c / (sd * sd);
+            }
+        }
+        double m[3][3], q[4]; /* q: x, y, z, w */
+        for (int r = 0; r < 3; r++)
+            for (int k = 0; k < 3; k++) m[r][k] = AT(b[0], i, 3 * r + k);
+        double tr = m[0][0] + (m[1][1] + m[2][2]); /* Eigen's trace: the unrolled halves */
+        if (tr > 0.0) {
+            double u = sqrt(tr + 1.0);
+            q[3] = 0.5 * u;
+            u = 0.5 / u;
+            q[0] = (m[2][1] - m[1][2]) * u;
+            q[1] = (m[0][2] - m[2][0]) * u;
+            q[2] = (m[1][0] - m[0][1]) * u;
+        } else {
+            int a = 0;
+            if (m[1][1] > m[0][0]) a = 1;
+            if (m[2][2] > m[a][a]) a = 2;
+            int j = (a + 1) % 3, k = (j + 1) % 3;
+            double u = sqrt(m[a][a] - m[j][j] - m[k][k] + 1.0);
+            q[a] = 0.5 * u;
+            u = 0.5 / u;
+            q[3] = (m[k][j] - m[j][k]) * u;
+            q[j] = (m[j][a] + m[a][j]) * u;
+            q[k] = (m[k][a] + m[a][k]) * u;
+        }
+        for (int d = 0; d < 3; d++) AT(b[5], i, d) = AT(b[1], i, d);
+        for (int d = 0; d < 4; d++) AT(b[5], i, 3 + d) = q[d];
+    }
+    release(b, 7);
+    return PyFloat_FromDouble(hmax);
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
@@ -2497,6 +2587,8 @@ static PyMethodDef methods[] = {
      "hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> |grad|^2: joints held at their limits"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
+    {"spring_targets", (PyCFunction)(void (*)(void))spring_targets, METH_FASTCALL,
+     "spring_targets(R, t, H, inner, floor, T, K) -> hmax: the full springs' targets and stiffnesses"},
     {"twist_prior", (PyCFunction)(void (*)(void))twist_prior, METH_FASTCALL,
      "twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> energy: the twist prior added to A and g"},
     {NULL, NULL, 0, NULL},

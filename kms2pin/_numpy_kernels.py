@@ -45,6 +45,7 @@ __all__ = [
     "silhouette_fit",
     "silhouette_union",
     "solve_shifted",
+    "spring_targets",
     "twist_prior",
 ]
 
@@ -248,6 +249,56 @@ def pose_springs(J, X, T, K, S, A, g) -> float:
     A[:] = Ji.reshape(6 * n, nv).T @ KJ
     g[:] = KJ.T @ e.ravel()
     return 0.5 * float(np.einsum("ni,nij,nj->", e, K, e))
+
+
+def _eigen_quaternions(R: np.ndarray) -> np.ndarray:
+    """(n, 4) ``[x, y, z, w]`` of rotations ``R`` (n, 3, 3) by Eigen's formula term for
+    term (Pinocchio's ``SE3ToXYZQUAT``: the same numbers to the last bit)."""
+    q = np.empty((len(R), 4))
+    m = R
+    tr = m[:, 0, 0] + (m[:, 1, 1] + m[:, 2, 2])  # Eigen's trace: the unrolled halves
+    pos = tr > 0.0
+    u = np.sqrt(tr[pos] + 1.0)
+    q[pos, 3] = 0.5 * u
+    u = 0.5 / u
+    mp = m[pos]
+    q[pos, 0] = (mp[:, 2, 1] - mp[:, 1, 2]) * u
+    q[pos, 1] = (mp[:, 0, 2] - mp[:, 2, 0]) * u
+    q[pos, 2] = (mp[:, 1, 0] - mp[:, 0, 1]) * u
+    for r in np.flatnonzero(~pos):
+        M = m[r]
+        a = 0
+        if M[1, 1] > M[0, 0]:
+            a = 1
+        if M[2, 2] > M[a, a]:
+            a = 2
+        j, k = (a + 1) % 3, (a + 2) % 3
+        v = np.sqrt(M[a, a] - M[j, j] - M[k, k] + 1.0)
+        q[r, a] = 0.5 * v
+        v = 0.5 / v
+        q[r, 3] = (M[k, j] - M[j, k]) * v
+        q[r, j] = (M[j, a] + M[a, j]) * v
+        q[r, k] = (M[k, a] + M[a, k]) * v
+    return q
+
+
+def spring_targets(R, t, H, inner, floor, T, K) -> float:
+    """The full springs (:func:`kms2pin.ecm.springs.pose_springs`) from the M-step fits:
+    ``T`` (n, 7) ``[t, x, y, z, w]`` of the fits' rotations ``R`` (n, 9) and centres ``t``
+    (Pinocchio's ``SE3ToXYZQUAT`` numbers); ``K`` (n, 36) = ``H`` plus ``floor * hmax /
+    S_d²`` on each diagonal entry, S_d the body's mean semi-axis (translations) or 1
+    (rotations), ``hmax = max H_dd S_d²`` (returned; -inf for no body).  ``K`` is ``H``
+    where ``hmax <= 0``."""
+    n = len(R)
+    S = np.ones((n, 6))
+    S[:, :3] = inner.mean(axis=1)[:, None]
+    hmax = float((H[:, ::7] * S**2).max()) if n else -np.inf  # ::7: the 6x6 diagonals
+    K[:] = H
+    if not hmax <= 0:
+        K[:, ::7] += floor * hmax / S**2
+    T[:, :3] = t
+    T[:, 3:] = _eigen_quaternions(R.reshape(n, 3, 3))
+    return hmax
 
 
 def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:

@@ -227,6 +227,23 @@ def _pose_springs(rng):
     return [rng.normal(size=(6, nv)), X, T, K, S, np.empty((nv, nv)), np.empty(nv)], (5, 6)
 
 
+def _spring_targets(rng):
+    """Rotations on both branches of the quaternion formula (near a half turn: trace <= 0),
+    one body unseen (no curvature)."""
+    n = 8
+    R = np.array([pin.AngleAxis(float(a), _unit(rng)).toRotationMatrix() for a in rng.uniform(0.0, np.pi, n)])
+    B = rng.normal(size=(n, 6, 6))
+    H = B @ B.transpose(0, 2, 1)
+    H[3] = 0.0
+    return [R.reshape(n, 9), rng.normal(size=(n, 3)), H.reshape(n, 36), rng.uniform(0.02, 0.3, (n, 3)), 0.05,
+            np.empty((n, 7)), np.empty((n, 36))], (5, 6)
+
+
+def _unit(rng):
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)
+
+
 def _twist_prior(rng, free=0.0):
     """Five spherical joints in a q of 30 (their quaternions off unit, some w < 0), onto a
     Newton system of 20 columns that already holds values."""
@@ -376,6 +393,7 @@ CASES: dict[str, Callable] = {
     "silhouette_counts": _silhouette_counts,
     "silhouette_counts-uint8": lambda rng: _silhouette_counts(rng, "uint8"),
     "solve_shifted": _solve_shifted,
+    "spring_targets": _spring_targets,
     "twist_prior": _twist_prior,
     "twist_prior-free": lambda rng: _twist_prior(rng, free=1.0),
     "solve_shifted-indefinite": lambda rng: _solve_shifted(rng, definite=False),
@@ -471,6 +489,34 @@ def test_fit_bodies_is_fit_body_body_by_body(backend):
     assert not np.array_equal(R_out[0], R[0]) and not np.array_equal(t_out[1], t[1])  # seen bodies moved
     np.testing.assert_array_equal(R_out[2], R[2])
     assert not H_out[2].any() and tuple(out[2]) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_spring_targets_are_pinocchio_s_quaternions_and_the_floored_matrices(backend):
+    """T holds pin.SE3ToXYZQUAT's numbers to the last bit (rotations on both branches of
+    the formula, slightly off orthonormal as fits are), K each H plus floor times the
+    largest scaled diagonal entry over the squared scale (translations in mean semi-axes)."""
+    if backend == "c":
+        require_kernels()
+    kernel = native.implementations("spring_targets")[backend]
+    rng = np.random.default_rng(11)
+    n = 400
+    R = np.array([pin.AngleAxis(float(a), _unit(rng)).toRotationMatrix() for a in rng.uniform(0.0, np.pi, n)])
+    R[::3] += rng.normal(size=R[::3].shape) * 1e-4
+    t = rng.normal(size=(n, 3))
+    B = rng.normal(size=(n, 6, 6))
+    H = B @ B.transpose(0, 2, 1)
+    inner = rng.uniform(0.02, 0.3, (n, 3))
+    T, K = np.empty((n, 7)), np.empty((n, 36))
+    hmax = kernel(R.reshape(n, 9), t, H.reshape(n, 36), inner, 0.05, T, K)
+    assert (np.trace(R, axis1=1, axis2=2) <= 0).sum() > 50  # both branches met
+    np.testing.assert_array_equal(T, [pin.SE3ToXYZQUAT(pin.SE3(Ri, ti)) for Ri, ti in zip(R, t)])
+    s = np.c_[np.repeat(inner.mean(axis=1, keepdims=True), 3, axis=1), np.ones((n, 3))]
+    expected = max(H[i, d, d] * s[i, d] ** 2 for i in range(n) for d in range(6))
+    assert hmax == expected
+    np.testing.assert_allclose(K.reshape(n, 6, 6), H + np.eye(6) * (0.05 * expected / s**2)[:, None, :], rtol=1e-15)
+    H[:] = 0.0  # nothing seen: K is H and the caller takes no springs
+    assert kernel(R.reshape(n, 9), t, H.reshape(n, 36), inner, 0.05, T, K) == 0.0 and not K.any()
 
 
 def test_fit_bodies_refuses_offsets_past_its_pixels():

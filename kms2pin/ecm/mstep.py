@@ -273,10 +273,6 @@ class PackedFits:
     def __getitem__(self, i: int) -> BodyFit:
         return BodyFit(pin.SE3(self.R[i], self.t[i]), self.hessian[i], float(self.evidence[i]), float(self.cost[i]))
 
-    def xyzquat(self) -> np.ndarray:
-        """(n, 7) ``[t, x, y, z, w]`` of the poses (``pin.SE3ToXYZQUAT``'s numbers)."""
-        return np.array([pin.SE3ToXYZQUATtuple(pin.SE3(R, t)) for R, t in zip(self.R, self.t)])
-
 
 def fit_packed(views: PackedViews, Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, *, iterations: int = 3,
                damping: float = 1e-3, max_step: float | None = None) -> PackedFits:

@@ -21,30 +21,30 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..native import kernels
 from ..robot import Robot
 from ..virtual_work import SpringTerm, pose_spring_update, static_update
 from .mstep import BodyFit, PackedFits
 
 __all__ = ["diagonal_update", "full_update", "pose_springs"]
 
-_I6 = np.arange(6)
-
-
 def pose_springs(fits: Sequence[BodyFit] | PackedFits, inner: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Targets (n, 7) ``[t, x, y, z, w]`` and stiffnesses (n, 6, 6) of the full springs:
     each body's M-step matrix plus ``floor`` times the stiffest body's diagonal entry
-    (translations scaled by each body's mean semi-axis).  None if no body is seen."""
+    (translations scaled by each body's mean semi-axis).  None if no body is seen.
+    One ``spring_targets`` kernel call; its quaternions are ``pin.SE3ToXYZQUAT``'s."""
     n = len(fits)
-    S = np.ones((n, 6))
-    S[:, :3] = inner.mean(axis=1)[:, None]
-    packed = isinstance(fits, PackedFits)
-    K = fits.hessian.copy() if packed else np.array([f.hessian for f in fits])  # (n, 6, 6), a fresh array
-    hmax = float((np.einsum("nii->ni", K) * S**2).max())
+    if isinstance(fits, PackedFits):
+        R, t, H = fits.R.reshape(n, 9), fits.t, fits.hessian.reshape(n, 36)
+    else:
+        R = np.array([f.pose.rotation for f in fits]).reshape(n, 9)
+        t = np.array([f.pose.translation for f in fits]).reshape(n, 3)
+        H = np.array([f.hessian for f in fits]).reshape(n, 36)
+    T, K = np.empty((n, 7)), np.empty((n, 36))
+    hmax = kernels.spring_targets(np.ascontiguousarray(R), t, H, np.asarray(inner, dtype=float), float(floor), T, K)
     if hmax <= 0:
         return None
-    K[:, _I6, _I6] += floor * hmax / S**2
-    T = fits.xyzquat() if packed else np.array([pin.SE3ToXYZQUAT(f.pose) for f in fits])
-    return T, K
+    return T, K.reshape(n, 6, 6)
 
 
 def full_update(robot: Robot, q: np.ndarray, fits: Sequence[BodyFit] | PackedFits, inner: np.ndarray, floor: float,
