@@ -849,18 +849,38 @@ static PyObject *solve_shifted(PyObject *self, PyObject *const *args, Py_ssize_t
     double *y = L + nv * nv;
     int ok = 1;
     for (Py_ssize_t j = 0; j < nv && ok; j++) {
-        for (Py_ssize_t i = j; i < nv; i++) {
-            double s = AT(b[0], i, j) + (i == j ? shift : 0.0);
-            for (Py_ssize_t m = 0; m < j; m++) s -= L[i * nv + m] * L[j * nv + m];
-            if (i == j) {
-                if (!(s > 0.0) || !isfinite(s)) {
-                    ok = 0;
-                    break;
-                }
-                L[j * nv + j] = sqrt(s);
-            } else {
-                L[i * nv + j] = s / L[j * nv + j];
+        const double *Lj = L + j * nv;
+        double s = AT(b[0], j, j) + shift;
+        for (Py_ssize_t m = 0; m < j; m++) s -= Lj[m] * Lj[m];
+        if (!(s > 0.0) || !isfinite(s)) {
+            ok = 0;
+            break;
+        }
+        double d = sqrt(s);
+        L[j * nv + j] = d;
+        /* the rows below, four at a time: four independent sums, each in the order of
+         * one row's (the same numbers as row by row, without waiting on one chain) */
+        Py_ssize_t i = j + 1;
+        for (; i + 3 < nv; i += 4) {
+            const double *L0 = L + i * nv, *L1 = L0 + nv, *L2 = L1 + nv, *L3 = L2 + nv;
+            double s0 = AT(b[0], i, j) + 0.0, s1 = AT(b[0], i + 1, j) + 0.0, s2 = AT(b[0], i + 2, j) + 0.0,
+                   s3 = AT(b[0], i + 3, j) + 0.0; /* + 0.0: a -0 entry as the row-by-row sum took it */
+            for (Py_ssize_t m = 0; m < j; m++) {
+                double l = Lj[m];
+                s0 -= L0[m] * l;
+                s1 -= L1[m] * l;
+                s2 -= L2[m] * l;
+                s3 -= L3[m] * l;
             }
+            L[i * nv + j] = s0 / d;
+            L[(i + 1) * nv + j] = s1 / d;
+            L[(i + 2) * nv + j] = s2 / d;
+            L[(i + 3) * nv + j] = s3 / d;
+        }
+        for (; i < nv; i++) {
+            double si = AT(b[0], i, j) + 0.0;
+            for (Py_ssize_t m = 0; m < j; m++) si -= L[i * nv + m] * Lj[m];
+            L[i * nv + j] = si / d;
         }
     }
     if (ok) {

@@ -3,6 +3,7 @@ the same outputs on random inputs, kernel by kernel, and the switch between them
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -271,6 +272,49 @@ def _solve_shifted(rng, definite=True, shift=0.0):
     M = rng.normal(size=(7, 7))
     H = M @ M.T if definite else M + M.T
     return [H, rng.normal(size=7), shift, np.full(7, 3.0)], (3,)
+
+
+def _cholesky_solve_row_by_row(H, g, shift):
+    """(H + shift I) x = -g by Cholesky in plain Python floats, each sum in column order:
+    the arithmetic of the C kernel's rows, one row at a time."""
+    n = len(g)
+    L = [[0.0] * n for _ in range(n)]
+    for j in range(n):
+        for i in range(j, n):
+            s = float(H[i, j]) + (shift if i == j else 0.0)
+            for m in range(j):
+                s -= L[i][m] * L[j][m]
+            L[i][j] = math.sqrt(s) if i == j else s / L[j][j]
+    y = [0.0] * n
+    for i in range(n):
+        s = -float(g[i])
+        for m in range(i):
+            s -= L[i][m] * y[m]
+        y[i] = s / L[i][i]
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        s = y[i]
+        for m in range(i + 1, n):
+            s -= L[m][i] * x[m]
+        x[i] = s / L[i][i]
+    return np.array(x)
+
+
+def test_solve_shifted_rows_are_summed_as_one_row_at_a_time():
+    """The C kernel's Cholesky takes four rows at a time; each sum keeps its own order, so
+    the step is the row-by-row arithmetic's to the last bit (sizes not a multiple of four,
+    a zero row among them)."""
+    require_kernels()
+    rng = np.random.default_rng(12)
+    for n in (1, 5, 13, 61):
+        M = rng.normal(size=(n, n))
+        H = M @ M.T
+        if n > 2:
+            H[1, :] = H[:, 1] = 0.0
+            H[1, 1] = 2.0
+        g, step = rng.normal(size=n), np.empty(n)
+        assert native.implementations("solve_shifted")["c"](H, g, 1e-9, step)
+        np.testing.assert_array_equal(step, _cholesky_solve_row_by_row(H, g, 1e-9))
 
 
 def _all_unit(rng, spoil=None):
