@@ -23,6 +23,27 @@ from .projection import BBox, body_bbox
 __all__ = ["PoseCache", "body_coverage", "body_silhouettes", "group_counts", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
 
 
+class _Poses(Sequence):
+    """The bodies' poses (world) as a sequence of ``pin.SE3`` made when first read from
+    rotations ``Rs`` (n, 3, 3) and centres ``ts`` (n, 3): the packed iteration reads
+    only the arrays."""
+
+    def __init__(self, Rs: np.ndarray, ts: np.ndarray):
+        self._Rs, self._ts = Rs, ts
+        self._made: list[pin.SE3 | None] = [None] * len(Rs)
+
+    def __len__(self) -> int:
+        return len(self._made)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        P = self._made[i]
+        if P is None:
+            P = self._made[i] = pin.SE3(self._Rs[i], self._ts[i])
+        return P
+
+
 class PoseCache:
     """The body poses at a configuration and their :func:`pose_arrays`, kept for the
     last configuration asked for: an iteration's outline test, the next iteration's
@@ -32,12 +53,17 @@ class PoseCache:
         self.robot = robot
         self._last: tuple | None = None
 
-    def __call__(self, q: np.ndarray) -> tuple[list[pin.SE3], np.ndarray, np.ndarray]:
-        """(poses, rotations (n, 3, 3), centres (n, 3)) of the bodies at ``q`` (world)."""
+    def __call__(self, q: np.ndarray) -> tuple[Sequence[pin.SE3], np.ndarray, np.ndarray]:
+        """(poses, rotations (n, 3, 3), centres (n, 3)) of the bodies at ``q`` (world); the
+        arrays are read from Pinocchio's frames, the poses made from them when read."""
         key = np.asarray(q, dtype=float).tobytes()
         if self._last is None or self._last[0] != key:
-            poses = self.robot.body_poses(q)
-            self._last = (key, poses, *pose_arrays(poses))
+            self.robot.forward(q)
+            placements = self.robot.data.oMf.tolist()
+            Ms = [placements[f] for f in self.robot.frame_ids]
+            Rs = np.array([M.rotation for M in Ms]).reshape(-1, 3, 3)
+            ts = np.array([M.translation for M in Ms]).reshape(-1, 3)
+            self._last = (key, _Poses(Rs, ts), Rs, ts)
         return self._last[1:]
 
 
