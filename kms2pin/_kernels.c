@@ -2566,6 +2566,70 @@ static PyObject *spring_targets(PyObject *self, PyObject *const *args, Py_ssize_
     return PyFloat_FromDouble(hmax);
 }
 
+/* outline_pixels(R, t, inner, Rwc, centre, K, out)
+ *
+ * The outline points of ellipsoids (rotations R (n, 9) row-major, centres t (n, 3),
+ * semi-axes inner (n, 3); world) projected into an undistorted pinhole camera (world_R_camera
+ * Rwc, centre, intrinsics K): out (7n, 2) pixels of each centre, then the ends of its three
+ * axes (+), then (-) (kms2pin.ecm.prediction.outline_points); NaN at or behind the camera
+ * plane.  kms2pin.ecm.loop's convergence test in pixels (tol_px).
+ */
+static PyObject *outline_pixels(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "outline_pixels(R, t, inner, Rwc, centre, K, out)");
+        return NULL;
+    }
+    Buf b[7];
+    memset(b, 0, sizeof(b));
+    static const char *names[7] = {"R", "t", "inner", "Rwc", "centre", "K", "out"};
+    for (int i = 0; i < 7; i++) {
+        if (get_buf(args[i], &b[i], i == 6, names[i]) < 0) {
+            release(b, 7);
+            return NULL;
+        }
+    }
+    Py_ssize_t n = b[0].view.ndim == 2 ? b[0].view.shape[0] : -1;
+    if (n < 0 || check_2d(&b[0], n, 9, "R") || check_2d(&b[1], n, 3, "t") || check_2d(&b[2], n, 3, "inner") ||
+        check_2d(&b[3], 3, 3, "Rwc") || b[4].view.ndim != 1 || b[4].view.shape[0] != 3 || check_2d(&b[5], 3, 3, "K") ||
+        check_2d(&b[6], 7 * n, 2, "out")) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "centre must be a 3-vector");
+        release(b, 7);
+        return NULL;
+    }
+    double Rwc[3][3], K[3][3], c[3];
+    for (int r = 0; r < 3; r++) {
+        c[r] = *(double *)((char *)b[4].view.buf + r * b[4].view.strides[0]);
+        for (int k = 0; k < 3; k++) {
+            Rwc[r][k] = AT(b[3], r, k);
+            K[r][k] = AT(b[5], r, k);
+        }
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double t[3], e[3][3]; /* e[k]: axis k's half length, world */
+        for (int r = 0; r < 3; r++) t[r] = AT(b[1], i, r);
+        for (int k = 0; k < 3; k++)
+            for (int r = 0; r < 3; r++) e[k][r] = AT(b[0], i, 3 * r + k) * AT(b[2], i, k);
+        for (int m = 0; m < 7; m++) {
+            double p[3], pc[3];
+            for (int r = 0; r < 3; r++) p[r] = m == 0 ? t[r] : (m <= 3 ? t[r] + e[m - 1][r] : t[r] - e[m - 4][r]);
+            for (int k = 0; k < 3; k++) pc[k] = (p[0] - c[0]) * Rwc[0][k] + (p[1] - c[1]) * Rwc[1][k] + (p[2] - c[2]) * Rwc[2][k];
+            Py_ssize_t row = 7 * i + m;
+            if (pc[2] > 0.0) {
+                double x = pc[0] / pc[2], y = pc[1] / pc[2];
+                AT(b[6], row, 0) = x * K[0][0] + y * K[0][1] + K[0][2];
+                AT(b[6], row, 1) = x * K[1][0] + y * K[1][1] + K[1][2];
+            } else {
+                AT(b[6], row, 0) = NAN;
+                AT(b[6], row, 1) = NAN;
+            }
+        }
+    }
+    release(b, 7);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"linearize", (PyCFunction)(void (*)(void))linearize, METH_FASTCALL,
      "linearize(J, X, T, K, S, same_joint, grad, H, diff, hessian) -> (energy, |grad|^2, max diag H)"},
@@ -2607,6 +2671,8 @@ static PyMethodDef methods[] = {
      "hold_limits(q, iq, iv, lo_at, hi_at, grad, H) -> |grad|^2: joints held at their limits"},
     {"solve_shifted", (PyCFunction)(void (*)(void))solve_shifted, METH_FASTCALL,
      "solve_shifted(H, grad, shift, step) -> bool: (H + shift I) step = -grad by Cholesky"},
+    {"outline_pixels", (PyCFunction)(void (*)(void))outline_pixels, METH_FASTCALL,
+     "outline_pixels(R, t, inner, Rwc, centre, K, out): ellipsoids' outline points in a pinhole camera"},
     {"spring_targets", (PyCFunction)(void (*)(void))spring_targets, METH_FASTCALL,
      "spring_targets(R, t, H, inner, floor, T, K) -> hmax: the full springs' targets and stiffnesses"},
     {"twist_prior", (PyCFunction)(void (*)(void))twist_prior, METH_FASTCALL,

@@ -39,6 +39,7 @@ __all__ = [
     "hold_limits",
     "linearize",
     "nullspace_system",
+    "outline_pixels",
     "pose_springs",
     "scale_fit",
     "silhouette_counts",
@@ -299,6 +300,24 @@ def spring_targets(R, t, H, inner, floor, T, K) -> float:
     T[:, :3] = t
     T[:, 3:] = _eigen_quaternions(R.reshape(n, 3, 3))
     return hmax
+
+
+def outline_pixels(R, t, inner, Rwc, centre, K, out) -> None:
+    """Ellipsoids' outline points (each centre, then its axes' ends +, then -; rotations
+    ``R`` (n, 9), centres ``t`` (n, 3), semi-axes ``inner`` (n, 3), world) projected into
+    an undistorted pinhole camera (``Rwc`` world_R_camera, ``centre``, ``K``): ``out``
+    (7n, 2) pixels, NaN at or behind the camera plane."""
+    n = len(R)
+    ends = R.reshape(n, 3, 3) * inner[:, None, :]  # column k: axis k's half length
+    axes = ends.transpose(0, 2, 1)
+    pts = np.concatenate([t[:, None], t[:, None] + axes, t[:, None] - axes], 1).reshape(-1, 3)
+    pc = (pts - centre) @ Rwc
+    z = pc[:, 2]
+    front = z > 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = pc[:, 0] / z, pc[:, 1] / z
+    out[:, 0] = np.where(front, x * K[0, 0] + y * K[0, 1] + K[0, 2], np.nan)
+    out[:, 1] = np.where(front, x * K[1, 0] + y * K[1, 1] + K[1, 2], np.nan)
 
 
 def twist_prior(q, iq, iv, axes, rest, free, k, A, g) -> float:

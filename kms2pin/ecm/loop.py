@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..native import kernels
 from ..robot import Robot
 from ..virtual_work import SpringTerm
 from .camera import Camera
@@ -108,8 +109,17 @@ class FrameECM:
         return q_new
 
     def _outline(self, q: np.ndarray, cameras: Sequence[Camera]) -> list[np.ndarray]:
+        """:func:`outline_pixels` of the bodies at ``q`` (one kernel call per undistorted camera)."""
         _, Rs, ts = self.poses(q)
-        return outline_pixels(outline_points(Rs, ts, self.sizes.inner), cameras)
+        inner = self.sizes.inner
+        if any(cam.dist is not None for cam in cameras):
+            return outline_pixels(outline_points(Rs, ts, inner), cameras)
+        n = len(Rs)
+        R9 = Rs.reshape(n, 9)
+        out = [np.empty((7 * n, 2)) for _ in cameras]
+        for cam, pixels in zip(cameras, out):
+            kernels.outline_pixels(R9, ts, inner, cam.world_R_camera, cam.centre, cam.K, pixels)
+        return out
 
     def run(self, q: np.ndarray, views: Views, timings: dict, max_iterations: int | None = None,
             coarse: Views | None = None, binned: bool = False) -> tuple[np.ndarray, int, bool]:

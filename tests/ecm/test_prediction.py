@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import require_kernels
 
+from kms2pin import native
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.prediction import (
     LEARNT_PRIOR_DEG,
@@ -119,3 +121,36 @@ def test_prediction_learnt_is_a_tracker_option_whose_model_a_restart_forgets():
     tr.restart(robot.q_rest)
     assert tr.ecm.motion.learnt.last is None
     assert Tracker(robot, cams).ecm.motion.learnt is None
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_the_outline_kernel_projects_as_the_camera_does(backend):
+    """outline_pixels (the kernel the iterations' outline test calls) gives Camera.project
+    of outline_points to rounding, NaN where a point is at or behind the camera plane."""
+    if backend == "c":
+        require_kernels()
+    kernel = native.implementations("outline_pixels")[backend]
+    rng = np.random.default_rng(4)
+    n = 30
+    R = np.array([pin.Quaternion(*rng.normal(size=4)).normalized().toRotationMatrix() for _ in range(n)])
+    cam = Camera(np.array([[400.0, 0.0, 320.0], [0.0, 410.0, 240.0], [0.0, 0.0, 1.0]]),
+                 pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.2, -0.1, 0.0])), 640, 480)
+    t = cam.centre + np.c_[rng.uniform(-1, 1, (n, 2)), rng.uniform(-0.5, 5.0, n)] @ cam.world_R_camera.T
+    inner = rng.uniform(0.05, 0.4, (n, 3))
+    out = np.empty((7 * n, 2))
+    kernel(R.reshape(n, 9), t, inner, cam.world_R_camera, cam.centre, cam.K, out)
+    expected = cam.project(outline_points(R, t, inner))
+    behind = np.isnan(expected[:, 0])
+    assert 0 < behind.sum() < len(behind)
+    np.testing.assert_array_equal(np.isnan(out[:, 0]), behind)
+    np.testing.assert_allclose(out[~behind], expected[~behind], rtol=1e-12, atol=1e-9)
+
+
+def test_image_motion_leaves_out_what_is_behind_a_camera_and_what_overflows():
+    a = [np.array([[0.0, 0.0], [1.0, 1.0], [np.nan, np.nan]]), np.array([[5.0, 5.0]])]
+    b = [np.array([[3.0, 4.0], [1.0, 1.0], [2.0, 2.0]]), np.array([[np.nan, np.nan]])]
+    assert image_motion(a, b) == 5.0
+    huge = [np.array([[1e300, 0.0], [0.0, 0.0]])]
+    with np.errstate(over="ignore"):  # 2e300 squared
+        assert image_motion(huge, [np.array([[-1e300, 0.0], [0.0, 2.0]])]) == 2.0
+    assert image_motion([np.full((2, 2), np.nan)], [np.zeros((2, 2))]) == 0.0
