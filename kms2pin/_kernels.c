@@ -1848,6 +1848,66 @@ static PyObject *estep_camera(PyObject *self, PyObject *const *args, Py_ssize_t 
  * LOCAL_WORLD_ALIGNED Jacobian J_i (6 x nv) at the body centre from Pinocchio's data.J
  * (world frame) and the support mask S (n, nv); K (n, 36) row-major 6x6 stiffness.
  * A = sum J_i^T K_i J_i, g = sum J_i^T K_i e_i; returns the energy sum 1/2 e_i^T K_i e_i. */
+/* Body i's pose error e (6: translation, rotation vector of X_i's rotation relative to
+ * T_i's, world axes) between rows i of X and T (n, 7, XYZQUAT); returns ``energy`` plus its
+ * spring energy 1/2 e_r K_rc e_c (K 6x6 row-major), added term by term in (r, c) order
+ * onto the running sum (the bodies' terms in one chain, as pose_springs always summed). */
+static double pose_error(const Buf *X, const Buf *T, Py_ssize_t i, const double *K, double *e, double energy)
+{
+    double p[3] = {AT(*X, i, 0), AT(*X, i, 1), AT(*X, i, 2)};
+    double qa[4] = {AT(*X, i, 3), AT(*X, i, 4), AT(*X, i, 5), AT(*X, i, 6)};
+    double qb[4] = {AT(*T, i, 3), AT(*T, i, 4), AT(*T, i, 5), AT(*T, i, 6)};
+    for (int c = 0; c < 3; c++) e[c] = p[c] - AT(*T, i, c);
+    /* relative rotation qa (x) conj(qb), then its rotation vector (angle in [0, pi]) */
+    double bxv[3], v[3];
+    cross(qa, qb, bxv);
+    double w = qa[3] * qb[3] + dot3(qa, qb);
+    for (int c = 0; c < 3; c++) v[c] = qb[3] * qa[c] - qa[3] * qb[c] - bxv[c];
+    if (w < 0) {
+        w = -w;
+        for (int c = 0; c < 3; c++) v[c] = -v[c];
+    }
+    double nrm = sqrt(dot3(v, v));
+    double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
+    for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
+    for (int r = 0; r < 6; r++)
+        for (int c = 0; c < 6; c++) energy += 0.5 * e[r] * K[6 * r + c] * e[c];
+    return energy;
+}
+
+/* pose_energy(X, T, K) -> energy: pose_springs' energy alone (no Jacobian, no A, no g),
+ * the same number to the last bit: the static update's last trial step needs only it. */
+static PyObject *pose_energy(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "pose_energy(X, T, K)");
+        return NULL;
+    }
+    Buf b[3];
+    memset(b, 0, sizeof(b));
+    static const char *names[3] = {"X", "T", "K"};
+    for (int i = 0; i < 3; i++) {
+        if (get_buf(args[i], &b[i], 0, names[i]) < 0) {
+            release(b, 3);
+            return NULL;
+        }
+    }
+    Py_ssize_t n = b[0].view.ndim == 2 ? b[0].view.shape[0] : -1;
+    if (check_2d(&b[0], -1, 7, "X") || check_2d(&b[1], n, 7, "T") || check_2d(&b[2], n, 36, "K")) {
+        release(b, 3);
+        return NULL;
+    }
+    double energy = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double e[6], Ki[36];
+        for (int c = 0; c < 36; c++) Ki[c] = AT(b[2], i, c);
+        energy = pose_error(&b[0], &b[1], i, Ki, e, energy);
+    }
+    release(b, 3);
+    return PyFloat_FromDouble(energy);
+}
+
 static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)self;
@@ -1890,25 +1950,9 @@ static PyObject *pose_springs(PyObject *self, PyObject *const *args, Py_ssize_t 
     }
     for (Py_ssize_t i = 0; i < n; i++) {
         double p[3] = {AT(b[1], i, 0), AT(b[1], i, 1), AT(b[1], i, 2)};
-        double qa[4] = {AT(b[1], i, 3), AT(b[1], i, 4), AT(b[1], i, 5), AT(b[1], i, 6)};
-        double qb[4] = {AT(b[2], i, 3), AT(b[2], i, 4), AT(b[2], i, 5), AT(b[2], i, 6)};
         double e[6], Ki[36];
         for (int c = 0; c < 36; c++) Ki[c] = AT(b[3], i, c);
-        for (int c = 0; c < 3; c++) e[c] = p[c] - AT(b[2], i, c);
-        /* relative rotation qa (x) conj(qb), then its rotation vector (angle in [0, pi]) */
-        double bxv[3], v[3];
-        cross(qa, qb, bxv);
-        double w = qa[3] * qb[3] + dot3(qa, qb);
-        for (int c = 0; c < 3; c++) v[c] = qb[3] * qa[c] - qa[3] * qb[c] - bxv[c];
-        if (w < 0) {
-            w = -w;
-            for (int c = 0; c < 3; c++) v[c] = -v[c];
-        }
-        double nrm = sqrt(dot3(v, v));
-        double sc = nrm < 1e-12 ? 2.0 / fmax(w, 1e-300) : 2.0 * atan2(nrm, w) / nrm;
-        for (int c = 0; c < 3; c++) e[3 + c] = v[c] * sc;
-        for (int r = 0; r < 6; r++)
-            for (int c = 0; c < 6; c++) energy += 0.5 * e[r] * Ki[6 * r + c] * e[c];
+        energy = pose_error(&b[1], &b[2], i, Ki, e, energy);
         /* J_i: rows (linear at p; angular), supported columns only (k-th: column idx[k]) */
         Py_ssize_t m = 0;
         for (Py_ssize_t a = 0; a < nv; a++) {
@@ -2655,6 +2699,8 @@ static PyMethodDef methods[] = {
      "fit_body(views, R, t, inner, iterations, damping, max_step, R_out, t_out, H_out) -> (evidence, cost)"},
     {"fit_bodies", (PyCFunction)(void (*)(void))fit_bodies, METH_FASTCALL,
      "fit_bodies(cams, inv, seen, R, t, inner, iterations, damping, max_step, R, t, H, out): every body's M-step"},
+    {"pose_energy", (PyCFunction)(void (*)(void))pose_energy, METH_FASTCALL,
+     "pose_energy(X, T, K) -> energy: the full springs' energy alone"},
     {"pose_springs", (PyCFunction)(void (*)(void))pose_springs, METH_FASTCALL,
      "pose_springs(J, X, T, K, S, A, g) -> energy: the tracker's full-spring static update system"},
     {"body_boxes", (PyCFunction)(void (*)(void))body_boxes, METH_FASTCALL,

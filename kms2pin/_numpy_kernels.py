@@ -40,6 +40,7 @@ __all__ = [
     "linearize",
     "nullspace_system",
     "outline_pixels",
+    "pose_energy",
     "pose_springs",
     "scale_fit",
     "silhouette_counts",
@@ -232,6 +233,21 @@ def nullspace_system(A, g, H, C, N, Hr, gr, lam) -> int:
     return rank
 
 
+def _pose_errors(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(n, 6) each body's pose error: translation, then the rotation vector of X's rotation
+    relative to T's (world axes)."""
+    e = np.empty((len(X), 6))
+    e[:, :3] = X[:, :3] - T[:, :3]
+    e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
+    return e
+
+
+def pose_energy(X, T, K) -> float:
+    """:func:`pose_springs`' energy alone: ``Σ ½ e_iᵀ K_i e_i``."""
+    e = _pose_errors(X, T)
+    return 0.5 * float(np.einsum("ni,nij,nj->", e, K.reshape(len(X), 6, 6), e))
+
+
 def pose_springs(J, X, T, K, S, A, g) -> float:
     """The static update with a full 6x6 spring per body (:func:`kms2pin.virtual_work.pose_spring_update`):
     body i's pose error ``e_i = (t_i - t'_i, log(R_i R'_iᵀ))`` (world axes) and its
@@ -240,9 +256,7 @@ def pose_springs(J, X, T, K, S, A, g) -> float:
     energy ``Σ ½ e_iᵀ K_i e_i``."""
     n, nv = len(X), J.shape[1]
     K = K.reshape(n, 6, 6)
-    e = np.empty((n, 6))
-    e[:, :3] = X[:, :3] - T[:, :3]
-    e[:, 3:] = _log_quat(_quat_mul_conj(X[:, 3:], T[:, 3:]))
+    e = _pose_errors(X, T)
     Ji = np.empty((n, 6, nv))
     Ji[:, 3:] = J[3:][None] * S[:, None, :]
     Ji[:, :3] = (J[:3][None] + np.cross(J[3:].T[None], X[:, None, :3]).transpose(0, 2, 1)) * S[:, None, :]

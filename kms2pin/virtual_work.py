@@ -567,22 +567,27 @@ def pose_spring_update(
         lo, hi = lo + 1e-12, hi - 1e-12
     ks: list[float] = []  # the terms' stiffnesses, fixed at the first configuration's springs
 
-    def springs(q):
-        """Newton system A, g and energy of the springs (and terms) at q."""
+    def springs(q, system=True):
+        """Newton system A, g and energy of the springs (and terms) at q; without
+        ``system`` the energy alone (A and g None; the terms add theirs to a scratch)."""
         pin.computeJointJacobians(model, data, q)
         X = body_frames(data, st)
-        A, g = np.empty((nv, nv)), np.empty(nv)
-        energy = kernels.pose_springs(data.J, X, targets, K36, st.support, A, g)
-        if not ks:
-            ks.extend(t.stiffness(A) for t in terms)
+        if system:
+            A, g = np.empty((nv, nv)), np.empty(nv)
+            energy = kernels.pose_springs(data.J, X, targets, K36, st.support, A, g)
+            if not ks:
+                ks.extend(t.stiffness(A) for t in terms)
+        else:  # the first call has a system: ks are set
+            energy = kernels.pose_energy(X, targets, K36)
+            A, g = (np.zeros((nv, nv)), np.zeros(nv)) if terms else (None, None)
         for t, k in zip(terms, ks):
             energy += t.add(A, g, q, data, k)
-        return A, g, energy
+        return (A, g, energy) if system else (None, None, energy)
 
     if robot.closures:
         return _closed_pose_spring_update(robot, q, springs, iterations)
     A, g, energy = springs(q)
-    for _ in range(iterations):
+    for it in range(iterations):
         dq = _newton_step(A, g)
         if limited:
             # a joint at a limit that the step pushes further is held there, and the
@@ -597,7 +602,9 @@ def pose_spring_update(
             q_new = pin.integrate(model, q, dq)
             return robot.clamp(q_new) if limited else q_new  # projected Gauss-Newton: the spec's joint limits
 
-        found = _backtracked(springs, energy, dq, trial)
+        # the last step's trials need their energy alone (its A and g would go unused)
+        last = it == iterations - 1
+        found = _backtracked((lambda x: springs(x, False)) if last else springs, energy, dq, trial)
         if found is None:
             break  # no step lowers the energy: q is (close to) a minimum
         q, A, g, energy, dq = found

@@ -255,6 +255,22 @@ def _unit(rng):
     return v / np.linalg.norm(v)
 
 
+def _pose_energy(rng):
+    args, _ = _pose_springs(rng)
+    return args[1:4], ()
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_pose_energy_is_pose_springs_energy_to_the_last_bit(backend):
+    """The static update's last trial step takes the energy alone: the same number."""
+    if backend == "c":
+        require_kernels()
+    impl = {n: native.implementations(n)[backend] for n in ("pose_energy", "pose_springs")}
+    for seed in range(5):
+        args, _ = _pose_springs(np.random.default_rng(seed))
+        assert impl["pose_energy"](*args[1:4]) == impl["pose_springs"](*args) > 0.0
+
+
 def _twist_prior(rng, free=0.0):
     """Five spherical joints in a q of 30 (their quaternions off unit, some w < 0), onto a
     Newton system of 20 columns that already holds values."""
@@ -443,6 +459,7 @@ CASES: dict[str, Callable] = {
     "fit_body": _fit_body,
     "fit_body-max-step-weighted": lambda rng: _fit_body(rng, max_step=0.02, weighted=True),
     "pose_springs": _pose_springs,
+    "pose_energy": _pose_energy,
     "body_boxes": _body_boxes,
     "silhouette_union": _silhouette_union,
     "silhouette_counts": _silhouette_counts,
