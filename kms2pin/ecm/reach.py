@@ -276,12 +276,12 @@ class ReachSearch:
         idx = list(moved)
         frames = [self.robot.frame_ids[i] for i in idx]
         oMf = self.robot.data.oMf
-        Rs, ts = np.empty((len(trials), len(idx), 3, 3)), np.empty((len(trials), len(idx), 3))
-        for k, c in enumerate(trials):
+        placements: list[np.ndarray] = []
+        for c in trials:
             self.robot.forward(c)  # the moved bodies' poses only
-            for j, f in enumerate(frames):
-                M = oMf[f]
-                Rs[k, j], ts[k, j] = M.rotation, M.translation
+            placements += [oMf[f].homogeneous for f in frames]  # each a fresh 4x4 (``rotation`` is a view)
+        H = np.array(placements).reshape(len(trials), len(idx), 4, 4)
+        Rs, ts = H[:, :, :3, :3], H[:, :, :3, 3]
         inter, union = np.zeros(len(trials), dtype=int), np.zeros(len(trials), dtype=int)
         for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
             counts = group_counts(cam, Rs, ts, inner[idx], fg, bg)
