@@ -28,6 +28,7 @@ from .mstep import BodyFit, PackedFits
 
 __all__ = ["diagonal_update", "full_update", "pose_springs"]
 
+
 def pose_springs(fits: Sequence[BodyFit] | PackedFits, inner: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Targets (n, 7) ``[t, x, y, z, w]`` and stiffnesses (n, 6, 6) of the full springs:
     each body's M-step matrix plus ``floor`` times the stiffest body's diagonal entry
