@@ -503,6 +503,16 @@ class Robot:
         self.forward(q)
         return [pin.SE3(self.data.oMf[f]) for f in self.frame_ids]
 
+    def body_pose_arrays(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`body_poses` as rotations (n, 3, 3) and centres (n, 3), world, read from
+        Pinocchio's frames without a ``pin.SE3`` per body (the same numbers)."""
+        self.forward(q)
+        placements = self.data.oMf.tolist()
+        frames = [placements[f] for f in self.frame_ids]
+        # np.array copies each at once: ``rotation`` is a view of Pinocchio's memory
+        return (np.array([M.rotation for M in frames]).reshape(-1, 3, 3),
+                np.array([M.translation for M in frames]).reshape(-1, 3))
+
     def maximal_coordinates(self, q: np.ndarray, convention: str = "positive") -> np.ndarray:
         """The thesis's q_i = [mu, theta0, theta1, theta2, theta3] per body (eq. 2.8), (n, 7).
 

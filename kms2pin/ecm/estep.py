@@ -93,11 +93,11 @@ class UnionEStep:
         packs, inv, seen_all = [], np.zeros((len(cameras), n)), np.zeros((len(cameras), n))
         for c, (cam, mask, box) in enumerate(zip(cameras, masks, boxed)):
             log_free = self._zeroed(c, cam.shape)
-            offset, dirs, sp, o, y = _estep_camera(cam, mask, As, ts, box, log_free)
+            offset, dirs, sp, o, y, inv_c = _estep_camera(cam, mask, As, ts, box, log_free)
             self._scratch[c, cam.shape] = log_free
             packs.append((dirs, y, o, offset, cam.centre))
-            seen, _, delta, _ = box
-            inv[c] = np.where(seen, 1.0 / (2.0 * np.where(seen, delta, 1.0)), 0.0)  # the M-step's 1/(2δ), as BodyView's
+            seen = box[0]
+            inv[c] = np.where(seen, inv_c, 0.0)  # the M-step's 1/(2δ), as BodyView's
             seen_all[c] = seen
         return PackedViews(packs, inv, seen_all)
 
@@ -151,7 +151,7 @@ class UnionEStep:
         if box is None:
             return None
         seen, boxes, delta, _ = box
-        offset, dirs, sp, o, y = _estep_camera(cam, mask, As.reshape(n, 9), ts, box, log_free)
+        offset, dirs, sp, o, y, _ = _estep_camera(cam, mask, As.reshape(n, 9), ts, box, log_free)
         out: list = [None] * n
         ib, off, dl = boxes.astype(int).tolist(), offset.astype(int).tolist(), delta.tolist()
         for i in np.flatnonzero(seen).tolist():
@@ -210,7 +210,7 @@ def _estep_camera(cam: Camera, mask: np.ndarray, As: np.ndarray, ts: np.ndarray,
     """One camera's E-step in one ``estep_camera`` call over the :func:`_boxes` ``box``
     (metrics ``As`` (n, 9), centres ``ts``), ``log_free`` its zeroed union image (zeroed
     again after): (offsets (n + 1,), then each body's pixels one after the other: rays
-    (N, 3), ``softplus(h)``, ``o``, ``y``)."""
+    (N, 3), ``softplus(h)``, ``o``, ``y``; then the bodies' ``1/(2δ)`` (n,), 1 out of view)."""
     seen, boxes, delta, counts = box
     offset = np.zeros(len(ts) + 1)
     np.cumsum(counts, out=offset[1:])
@@ -219,4 +219,4 @@ def _estep_camera(cam: Camera, mask: np.ndarray, As: np.ndarray, ts: np.ndarray,
     inv = np.where(seen, 0.5 / np.where(seen, delta, 1.0), 1.0)
     kernels.estep_camera(world_rays(cam), As, cam.centre - ts, inv, boxes, offset, np.ascontiguousarray(mask), log_free,
                          dirs, sp, o, y)
-    return offset, dirs, sp, o, y
+    return offset, dirs, sp, o, y, inv

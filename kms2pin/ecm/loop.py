@@ -24,7 +24,6 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from ..native import kernels
 from ..robot import Robot
 from ..virtual_work import SpringTerm
 from .camera import Camera
@@ -32,7 +31,7 @@ from .estep import UnionEStep
 from .masks import Views
 from .mstep import BodyView, fit_bodies, fit_packed
 from .options import TrackerOptions
-from .prediction import Motion, VelocityGain, image_motion, outline_pixels, outline_points
+from .prediction import Motion, VelocityGain, body_outline_pixels, image_motion
 from .priors import DepthPrior
 from .silhouette import PoseCache, silhouette_iou
 from .sizes import BodySizes
@@ -109,17 +108,8 @@ class FrameECM:
         return q_new
 
     def _outline(self, q: np.ndarray, cameras: Sequence[Camera]) -> list[np.ndarray]:
-        """:func:`outline_pixels` of the bodies at ``q`` (one kernel call per undistorted camera)."""
         _, Rs, ts = self.poses(q)
-        inner = self.sizes.inner
-        if any(cam.dist is not None for cam in cameras):
-            return outline_pixels(outline_points(Rs, ts, inner), cameras)
-        n = len(Rs)
-        R9 = Rs.reshape(n, 9)
-        out = [np.empty((7 * n, 2)) for _ in cameras]
-        for cam, pixels in zip(cameras, out):
-            kernels.outline_pixels(R9, ts, inner, cam.world_R_camera, cam.centre, cam.K, pixels)
-        return out
+        return body_outline_pixels(Rs, ts, self.sizes.inner, cameras)
 
     def run(self, q: np.ndarray, views: Views, timings: dict, max_iterations: int | None = None,
             coarse: Views | None = None, binned: bool = False) -> tuple[np.ndarray, int, bool]:

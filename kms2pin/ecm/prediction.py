@@ -15,10 +15,12 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import RobotError
+from ..native import kernels
 from ..robot import Robot
 from .camera import Camera
 
-__all__ = ["LEARNT_PRIOR_DEG", "Motion", "VelocityGain", "image_motion", "outline_pixels", "outline_points"]
+__all__ = ["LEARNT_PRIOR_DEG", "Motion", "VelocityGain", "body_outline_pixels", "image_motion", "outline_pixels",
+           "outline_points"]
 
 #: the learnt motion model's prior (:class:`VelocityGain`): a steady motion of this many
 #: degrees a frame, carried on in full
@@ -131,6 +133,20 @@ def outline_points(Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray) -> np.ndar
 def outline_pixels(points: np.ndarray, cameras: Sequence[Camera]) -> list[np.ndarray]:
     """:func:`outline_points` projected into every camera (NaN behind it)."""
     return [cam.project(points) for cam in cameras]
+
+
+def body_outline_pixels(Rs: np.ndarray, ts: np.ndarray, inner: np.ndarray, cameras: Sequence[Camera]) -> list[np.ndarray]:
+    """:func:`outline_pixels` of :func:`outline_points` (rotations ``Rs``, centres ``ts``,
+    semi-axes ``inner``): one ``outline_pixels`` kernel call per camera when none is
+    distorted."""
+    if any(cam.dist is not None for cam in cameras):
+        return outline_pixels(outline_points(Rs, ts, inner), cameras)
+    n = len(Rs)
+    R9 = Rs.reshape(n, 9)
+    out = [np.empty((7 * n, 2)) for _ in cameras]
+    for cam, pixels in zip(cameras, out):
+        kernels.outline_pixels(R9, ts, inner, cam.world_R_camera, cam.centre, cam.K, pixels)
+    return out
 
 
 def image_motion(a: list[np.ndarray], b: list[np.ndarray]) -> float:

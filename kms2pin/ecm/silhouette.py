@@ -45,7 +45,7 @@ class _Poses(Sequence):
 
 
 class PoseCache:
-    """The body poses at a configuration and their :func:`pose_arrays`, kept for the
+    """The body poses at a configuration and their arrays, kept for the
     last configuration asked for: an iteration's outline test, the next iteration's
     E-step and the frame's fit all want the same ones."""
 
@@ -55,14 +55,10 @@ class PoseCache:
 
     def __call__(self, q: np.ndarray) -> tuple[Sequence[pin.SE3], np.ndarray, np.ndarray]:
         """(poses, rotations (n, 3, 3), centres (n, 3)) of the bodies at ``q`` (world); the
-        arrays are read from Pinocchio's frames, the poses made from them when read."""
+        arrays are :meth:`Robot.body_pose_arrays`, the poses made from them when read."""
         key = np.asarray(q, dtype=float).tobytes()
         if self._last is None or self._last[0] != key:
-            self.robot.forward(q)
-            placements = self.robot.data.oMf.tolist()
-            Ms = [placements[f] for f in self.robot.frame_ids]
-            Rs = np.array([M.rotation for M in Ms]).reshape(-1, 3, 3)
-            ts = np.array([M.translation for M in Ms]).reshape(-1, 3)
+            Rs, ts = self.robot.body_pose_arrays(q)
             self._last = (key, _Poses(Rs, ts), Rs, ts)
         return self._last[1:]
 

@@ -154,3 +154,16 @@ def test_image_motion_leaves_out_what_is_behind_a_camera_and_what_overflows():
     with np.errstate(over="ignore"):  # 2e300 squared
         assert image_motion(huge, [np.array([[-1e300, 0.0], [0.0, 2.0]])]) == 2.0
     assert image_motion([np.full((2, 2), np.nan)], [np.zeros((2, 2))]) == 0.0
+
+
+def test_body_pose_arrays_are_the_body_poses_and_do_not_move_with_the_next_configuration():
+    robot = _robot("lowerbody")
+    q = robot.q_rest.copy()
+    Rs, ts = robot.body_pose_arrays(q)
+    poses = robot.body_poses(q)
+    np.testing.assert_array_equal(Rs, [P.rotation for P in poses])
+    np.testing.assert_array_equal(ts, [P.translation for P in poses])
+    q2 = q.copy()
+    q2[0] += 0.3
+    robot.forward(q2)  # Pinocchio's frames move; the arrays read before do not
+    np.testing.assert_array_equal(ts, [P.translation for P in poses])
