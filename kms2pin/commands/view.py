@@ -87,10 +87,8 @@ def run(args: argparse.Namespace) -> int:
         if args.png:
             view.camera(args.camera, 16 / 10)
         control = JointControl(robot, view, host=args.host, port=args.port)
-        print(f"meshcat viewer:  {view.url}")
-        print(f"joint control:   {control.url}")
-        print("press Ctrl-C to stop", flush=True)
-        _serve_until_interrupted()
+        _serve_until_interrupted([f"meshcat viewer:  {view.url}", f"joint control:   {control.url}",
+                                  "press Ctrl-C to stop"])
         return 0
     finally:
         if control is not None:
@@ -98,12 +96,17 @@ def run(args: argparse.Namespace) -> int:
         view.close()
 
 
-def _serve_until_interrupted() -> None:
+def _serve_until_interrupted(ready: list[str]) -> None:
+    """Print the ``ready`` lines, then serve until Ctrl-C or SIGTERM.  The SIGTERM handler
+    is in place before the lines go out: a supervisor that stops the viewer as soon as it
+    reads them gets a clean stop (exit 0, the servers closed), not a kill."""
+
     def on_term(signum, frame):
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
+        print("\n".join(ready), flush=True)
         while True:
             time.sleep(0.5)
     except KeyboardInterrupt:
