@@ -5,7 +5,8 @@ one-camera tracker's alternative hypotheses (the mirror image, the left/right sw
 Twins are named ``left*`` / ``right*`` (compared in lower case): bodies such as
 ``leftThigh`` / ``rightThigh``, joints such as ``leftThigh_hip`` / ``rightThigh_hip``; or, where
 both names exist, with a side word (``thigh_l`` / ``thigh_r``, and the joint ``thigh_l_joint`` /
-``thigh_r_joint`` an import makes of them) or ``l*`` / ``r*`` (CMU's ``lhand`` / ``rhand``,
+``thigh_r_joint`` an import makes of them), a word's ``left`` / ``right`` start after a prefix
+(Mixamo's ``mixamorig:LeftArm``) or ``l*`` / ``r*`` (CMU's ``lhand`` / ``rhand``,
 ``LHipJoint`` / ``RHipJoint``; :func:`twin_name`).
 """
 
@@ -25,12 +26,19 @@ _SIDES = {"l": "r", "r": "l", "left": "right", "right": "left"}
 
 
 def _others(name: str) -> list[str]:
-    """The names that would be ``name``'s twin: each side word (split at ``_`` and ``.``)
-    turned to the other side, then the first letter ``l`` <-> ``r`` (CMU's ``lhand``)."""
-    words = re.split(r"([_.])", name)
-    out = ["".join([*words[:k], _SIDES[w], *words[k + 1 :]]) for k, w in enumerate(words) if w in _SIDES]
-    if name[:1] in ("l", "r") and len(name) > 1:
-        out.append(_SIDES[name[0]] + name[1:])
+    """The names that would be ``name``'s twin, in this order: each side word turned to
+    the other side (words split at ``_``, ``.``, ``:``, ``-`` and spaces: ``thigh_l``), a
+    word's ``left`` / ``right`` start turned (Mixamo's ``mixamorig:LeftArm``, imported as
+    ``mixamorig_leftarm``), then a word's first letter ``l`` <-> ``r`` (CMU's ``lhand``)."""
+    words = re.split(r"([_.:\- ])", name)
+
+    def turned(k: int, word: str) -> str:
+        return "".join([*words[:k], word, *words[k + 1 :]])
+
+    out = [turned(k, _SIDES[w]) for k, w in enumerate(words) if w in _SIDES]
+    out += [turned(k, _SIDES[side] + w[len(side) :]) for k, w in enumerate(words) for side in ("left", "right")
+            if w.startswith(side) and len(w) > len(side)]
+    out += [turned(k, _SIDES[w[0]] + w[1:]) for k, w in enumerate(words) if w[:1] in ("l", "r") and len(w) > 1]
     return out
 
 
@@ -42,7 +50,8 @@ def twin_name(name: str, names: Collection[str] = ()) -> str:
     """The left/right twin of a lower-case name: ``left*`` <-> ``right*`` always
     (``leftthigh`` <-> ``rightthigh``); among ``names`` (lower case too: the model's names
     of the same kind) also a side word turned (``hip_l_joint`` <-> ``hip_r_joint``,
-    ``arm_left`` <-> ``arm_right``) or the first letter ``l`` <-> ``r`` (``lhand`` <-> ``rhand``),
+    ``arm_left`` <-> ``arm_right``), a word's side start (``mixamorig_leftarm`` <->
+    ``mixamorig_rightarm``) or a word's first letter ``l`` <-> ``r`` (``lhand`` <-> ``rhand``),
     where the two names are each other's first such twin.  Itself if it has none."""
     if name.startswith("left"):
         return "right" + name[4:]

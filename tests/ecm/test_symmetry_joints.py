@@ -160,6 +160,10 @@ def test_twin_names_in_the_spellings_skeletons_use():
     assert (twin_name("rib_l", ribs), twin_name("rib_r", ribs), twin_name("lib_l", ribs)) == ("rib_r", "rib_l", "lib_l")
     names = ["Hips", "LHipJoint", "RHipJoint", "LeftHip", "RightHip", "lhand", "rhand", "lowerback", "LThumb", "RThumb"]
     assert sorted(left_right_pairs(names)) == [(1, 2), (3, 4), (5, 6), (8, 9)]  # (left, right) each
+    # after a prefix (Mixamo's "mixamorig:", 3ds Max's "Bip01 "), the same spellings word by word
+    prefixed = [f"mixamorig_{n}" for n in names] + ["bip01_l_thigh", "bip01_r_thigh", "bip01 l hand", "bip01 r hand"]
+    assert sorted(left_right_pairs(prefixed)) == [(1, 2), (3, 4), (5, 6), (8, 9), (10, 11), (12, 13)]
+    assert twin_name("mixamorig_lowerback", {n.lower() for n in prefixed}) == "mixamorig_lowerback"
 
 
 def test_an_unreal_named_skeleton_has_its_twins(tmp_path):
@@ -174,6 +178,21 @@ def test_an_unreal_named_skeleton_has_its_twins(tmp_path):
     symmetry = Symmetry.of(robot)
     assert symmetry is not None and symmetry.twin["Hip_l_joint"].name == "Hip_r_joint"
     assert symmetry.twin["Elbow_r_joint"].name == "Elbow_l_joint"
+
+
+def test_a_mixamo_named_skeleton_has_its_twins(tmp_path):
+    """The CMU walker's joints named as Mixamo exports them (``mixamorig:LeftUpLeg``): the
+    import's names (``mixamorig_LeftHip_joint``) are paired, and the model has a symmetry."""
+    text = re.sub(r"\b(ROOT|JOINT) (\w+)", r"\1 mixamorig:\2", CMU_WALK.read_text())
+    assert "JOINT mixamorig:LeftHip" in text
+    (tmp_path / "mixamo.bvh").write_text(text)
+    robot, _ = cmu_walker(tmp_path / "mixamo.bvh")
+    symmetry = Symmetry.of(robot)
+    assert symmetry is not None
+    twins = {a: j.name for a, j in symmetry.twin.items()}
+    for left, right in (("LeftHip", "RightHip"), ("LeftShoulder", "RightShoulder"), ("lhand", "rhand")):
+        a, b = (next(n for n in twins if n.startswith(f"mixamorig_{side}")) for side in (left, right))
+        assert twins[a] == b and twins[b] == a
 
 
 def test_a_real_subjects_sides_mirror_each_other_within_the_tolerance():
