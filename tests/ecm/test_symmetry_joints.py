@@ -17,7 +17,8 @@ from kms2pin.ecm.prediction import Motion
 from kms2pin.ecm.symmetry import Symmetry
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
-from kms2pin.robot import load
+from kms2pin.lang import parse_text
+from kms2pin.robot import Robot, load
 
 from ._tracking import CMU_WALK, DIR, centre_error, cmu_walker
 
@@ -221,3 +222,49 @@ def test_a_real_subjects_sides_mirror_each_other_within_the_tolerance():
                           "Thigh leftThigh(1.4*(hipHeight - kneeHeight), 0.045*H);")
     assert longer != text
     assert Symmetry.of(load(longer, root="free")) is None
+
+
+def _knee_flipped_lowerbody():
+    """The thesis's lower body with the left knee's axis turned round (its thigh's and shin's
+    knee vectors point +x, the right ones -x) and its rest angle negated: the same body at
+    rest, its knees' axes mirror images as polar vectors, so a mirrored bend negates the angle."""
+    text = (DIR / "lowerbody.kms").read_text()
+    knee = "    bvec knee {{\n        pos(0, 0, {}*length);\n        orient(-1, 0, 0);\n    }}"
+    sided = "    bvec knee {{\n        pos(0, 0, {}*length);\n        if (leftSide) {{ orient(1, 0, 0); }} else {{ orient(-1, 0, 0); }}\n    }}"
+    for edit in ((knee.format("-0.8"), sided.format("-0.8")), (knee.format("0.8"), sided.format("0.8")),
+                 ("Shin(double length, double radius)", "Shin(double length, double radius, bool leftSide)"),
+                 ("leftShin(0.55, 0.23);", "leftShin(0.55, 0.23, true);"),
+                 ("rightShin(0.55, 0.23);", "rightShin(0.55, 0.23, false);"),
+                 ("revolute(leftShin.knee, leftThigh.knee, 2*postureDelta)", "revolute(leftShin.knee, leftThigh.knee, -2*postureDelta)")):
+        assert edit[0] in text
+        text = text.replace(*edit)
+    spec = parse_text(text, "lowerbody-flipped.kms")
+    return Robot(spec, spec.system(), "free")
+
+
+def test_twin_hinges_whose_axes_point_the_same_way_are_mirrored_by_negating_the_angle():
+    """A hinge twin whose axis is its twin's mirror image as a polar vector (left +x, right -x
+    here) bends the other way for the same angle, so the mirror image negates it: the swap
+    then puts every body centre onto its twin's reflected one exactly, where exchanging the
+    angles as they are bent both knees the wrong way (and the model had no symmetry)."""
+    plain, flipped = load(DIR / "lowerbody.kms", root="free"), _knee_flipped_lowerbody()
+    rest = [np.array([M.translation for M in r.body_poses(r.q_rest)]) for r in (plain, flipped)]
+    assert np.allclose(rest[0], rest[1], atol=1e-12)  # the same body at rest
+    rng = np.random.default_rng(3)
+    for robot, knee_sign in ((plain, 1.0), (flipped, -1.0)):
+        symmetry = Symmetry.of(robot)
+        assert symmetry is not None
+        signs = {j.name: symmetry.sign(j) for j in robot.joints if j.kind == "revolute"}
+        assert signs == {n: (knee_sign if "knee" in n else 1.0) for n in signs}
+        names = {b.lower(): i for i, b in enumerate(robot.bodies)}
+        twin = [names[twin_name(b, names)] for b in names]
+        for _ in range(5):
+            q = robot.q_rest.copy()
+            q[:3] += rng.normal(size=3)
+            q[3:7] = pin.Quaternion(pin.exp3(rng.normal(size=3))).coeffs()
+            for j in robot.joints[1:]:
+                q[j.idx_q] += rng.uniform(-1.0, 1.0)
+            root = pin.XYZQUATToSE3(q[:7])
+            before, after = (np.array([root.actInv(M).translation for M in robot.body_poses(x)])
+                             for x in (q, symmetry.swap(q)))
+            assert np.abs(after - (before @ symmetry.S.T)[twin]).max() < 1e-9 * robot.height
