@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Collection, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -94,6 +95,69 @@ def sagittal_mirror(robot: Robot) -> np.ndarray | None:
         return None
     lateral /= norm
     return np.eye(3) - 2.0 * np.outer(lateral, lateral)
+
+
+@dataclass(frozen=True)
+class Sides:
+    """Which side of the body's midline each body with a left/right twin lies on
+    (:func:`sides`): ``body`` (indices), the nearest ancestor without a twin that each
+    hangs from (``anchor``: the chest for an arm's bodies, the pelvis for a leg's), the
+    sagittal plane's normal in that ancestor's axes (``normal``, (n, 3)) and the side of
+    it the body's centre lies on at rest (``sign``, ±1)."""
+
+    body: np.ndarray
+    anchor: np.ndarray
+    normal: np.ndarray
+    sign: np.ndarray
+
+    def crossed(self, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
+        """Per configuration (bodies' rotations ``Rs`` (k, n_bodies, 3, 3) and centres
+        ``ts`` (k, n_bodies, 3), world; only this object's bodies and anchors are read),
+        whether some body's centre lies across its anchor's sagittal plane from its side
+        at rest."""
+        n = np.einsum("kaij,aj->kai", Rs[:, self.anchor], self.normal)
+        side = np.einsum("kai,kai->ka", n, ts[:, self.body] - ts[:, self.anchor])
+        return (side * self.sign < 0).any(axis=1)
+
+
+def sides(robot: Robot) -> Sides | None:
+    """The :class:`Sides` of the roots of ``robot``'s twin limbs (:func:`left_right_pairs`):
+    the bodies from the one hanging from a body without a twin down to the first on a
+    spherical joint with a hinge below (a collar and an upper arm, a hip and a thigh), or
+    that first body alone; those off the midline at rest.  None without a sagittal plane."""
+    S = sagittal_mirror(robot)
+    if S is None:
+        return None
+    w, v = np.linalg.eigh(S)
+    poses = robot.body_poses(robot.q_rest)
+    root = pin.XYZQUATToSE3(robot.q_rest[:7]).rotation if robot.root == "free" else np.eye(3)
+    normal = root @ v[:, int(np.argmin(w))]  # world, at rest
+    twins = {k for pair in left_right_pairs(robot.bodies) for k in pair}
+    parent = {j.child: j.parent for j in robot.system.joints if j.child is not None}
+    kind = {j.name: j.kind for j in robot.joints}
+    below = {}
+    for j in robot.system.joints:
+        below.setdefault(j.parent, []).append(kind.get(j.name))
+    hinged = {j.child for j in robot.system.joints if kind.get(j.name) == "spherical" and below.get(j.child) == ["revolute"]}
+    rows = []
+    for i in sorted(twins):
+        path = [robot.bodies[i]]  # from body i up to the first body without a twin
+        while robot.index(path[-1]) in twins and parent.get(path[-1]) in robot.bodies:
+            path.append(parent[path[-1]])
+        k = robot.index(path[-1])
+        chain = path[-2::-1]  # from the anchor's child down to body i
+        # the limb's root: down to its first spherical joint with a hinge below (a collar and
+        # an upper arm; a thigh), or the anchor's child alone; the bodies below may cross
+        top = next((n + 1 for n, b in enumerate(chain) if b in hinged), 1)
+        if k in twins or len(chain) > top:
+            continue
+        offset = float(normal @ (poses[i].translation - poses[k].translation))
+        if abs(offset) > 1e-3 * robot.height:
+            rows.append((i, k, poses[k].rotation.T @ normal, np.sign(offset)))
+    if not rows:
+        return None
+    body, anchor, n, sign = zip(*rows)
+    return Sides(np.array(body), np.array(anchor), np.array(n), np.array(sign))
 
 
 def movable(robot: Robot, jid: int) -> bool:

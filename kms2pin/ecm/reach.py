@@ -17,7 +17,10 @@ a revolute joint set to angles :data:`STEP_DEG` apart within its limits.  A sphe
 joint with a hinge below it (an upper arm above an elbow, a thigh above a knee) is also
 turned about its bone by each of :data:`TWISTS_DEG`, each turn with the hinge's angles:
 the turn sets the plane the hinge bends in, which the round body's own silhouette does
-not show.  Each choice is scored by the silhouette fit (IoU) with the rest of the body
+not show.  A choice that puts the root of a twin limb (a collar, an upper arm, a hip's
+first bone, a thigh: :func:`~kms2pin.ecm.limbs.sides`) across the sagittal plane of the
+body it hangs from is dropped (:data:`SIDES_KEPT`): that is the arms or legs traded, not
+a limb re-aimed.  Each choice is scored by the silhouette fit (IoU) with the rest of the body
 held, rendering only the moved bodies anew (a coarse score: a trial 20 degrees off a
 thin limb scores as one far off).  Unless the body's pose as it is scores best (the
 search then found nothing), the :data:`REFINED` best directions, each with its best bend
@@ -49,12 +52,13 @@ import numpy as np
 import pinocchio as pin
 
 from ..robot import JointCoordinates, Robot
+from .limbs import Sides, sides
 from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM
 from .masks import Views
 from .silhouette import body_coverage, group_counts, model_silhouette
 
-__all__ = ["ALWAYS_REFINED", "BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "REFINE_MARGIN",
+__all__ = ["ALWAYS_REFINED", "BLOB", "COVERED", "DIRECTIONS", "GAIN", "MIN_PIXELS", "REFINED", "REFINE_MARGIN", "SIDES_KEPT",
            "TWISTS_DEG", "ReachSearch", "sphere_directions"]
 
 #: a body with less of its silhouette on the mask than this, in some camera, is lost
@@ -86,6 +90,10 @@ ALWAYS_REFINED = 3
 #: a screened trial that fits worse than the frame's pose by more than this (IoU) is not
 #: refined: the frame's ECM does not make up that much (docs/design/tracking-history.md)
 REFINE_MARGIN = 0.005
+#: a trial that puts a body with a left/right twin across the midline (its centre on the
+#: other side of the sagittal plane of the body it hangs from: a collar pointed through the
+#: chest, the shoulders traded) is not scored
+SIDES_KEPT = True
 
 
 def sphere_directions(n: int) -> np.ndarray:
@@ -140,6 +148,8 @@ class ReachSearch:
             child, child_body = kids[0] if len(kids) == 1 else (None, None)
             self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
         self.directions = sphere_directions(DIRECTIONS)
+        self.sides = sides(robot)
+        self._guards: dict[tuple[int, ...], tuple[list[int], Sides | None]] = {}
         self.always = self._always(always, set(feet))
         self.forget()
 
@@ -275,21 +285,41 @@ class ReachSearch:
         the earlier), the bodies but ``moved`` as in ``held`` (:meth:`_held`)."""
         inner = self.ecm.sizes.inner
         idx = list(moved)
-        frames = [self.robot.frame_ids[i] for i in idx]
+        read, guard = self._guard(moved)
+        frames = [self.robot.frame_ids[i] for i in read]
         oMf = self.robot.data.oMf
         placements: list[np.ndarray] = []
         for c in trials:
-            self.robot.forward(c)  # the moved bodies' poses only
+            self.robot.forward(c)  # the moved bodies' poses only (and their anchors')
             placements += [oMf[f].homogeneous for f in frames]  # each a fresh 4x4 (``rotation`` is a view)
-        H = np.array(placements).reshape(len(trials), len(idx), 4, 4)
-        Rs, ts = H[:, :, :3, :3], H[:, :, :3, 3]
+        H = np.array(placements).reshape(len(trials), len(read), 4, 4)
+        Rs, ts = H[:, : len(idx), :3, :3], H[:, : len(idx), :3, 3]
         inter, union = np.zeros(len(trials), dtype=int), np.zeros(len(trials), dtype=int)
         for cam, (i0, u0, fg, bg) in zip(views.cameras, held):
             counts = group_counts(cam, Rs, ts, inner[idx], fg, bg)
             inter += i0 + counts[:, 0]
             union += u0 + counts[:, 1]
         iou = [i / u if u else 1.0 for i, u in zip(inter.tolist(), union.tolist())]
-        return [trials[k] for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k))[:keep]]
+        crossed = guard.crossed(H[:, :, :3, :3], H[:, :, :3, 3]) if guard is not None else np.zeros(len(trials), bool)
+        crossed[0] = False  # the configuration the trials start from stays a candidate
+        ranked = [k for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k)) if not crossed[k]]
+        return [trials[k] for k in ranked[:keep]]
+
+    def _guard(self, moved: tuple[int, ...]) -> tuple[list[int], Sides | None]:
+        """The bodies :meth:`_ranked` reads for ``moved`` (the moved ones, then the anchors
+        of those with a twin) and the :class:`~kms2pin.ecm.limbs.Sides` of those, indexed
+        into that list (None: no moved body has a twin)."""
+        if moved not in self._guards:
+            read, guard = list(moved), None
+            sd = self.sides if SIDES_KEPT else None
+            rows = [k for k in range(len(sd.body)) if sd.body[k] in moved] if sd is not None else []
+            if rows:
+                read += sorted({int(sd.anchor[k]) for k in rows} - set(moved))
+                pos = {b: n for n, b in enumerate(read)}
+                guard = Sides(np.array([pos[int(sd.body[k])] for k in rows]), np.array([pos[int(sd.anchor[k])] for k in rows]),
+                              sd.normal[rows], sd.sign[rows])
+            self._guards[moved] = (read, guard)
+        return self._guards[moved]
 
     def _starts(self, q: np.ndarray, r: _Reach, views: Views) -> list[np.ndarray]:
         """The :data:`REFINED` (a body always re-aimed: ``always_directions``) best trials

@@ -253,3 +253,43 @@ def test_a_trial_that_screens_well_below_the_pose_is_not_refined(monkeypatch):
             assert screens and sorted(screens)[-1] < fit - REFINE_MARGIN
     assert found[REFINE_MARGIN] == (True, [], found[1.0][2], 0)
     assert found[1.0][:2] == (True, []) and found[1.0][3] > 0
+
+
+def test_a_limbs_root_turned_across_the_midline_is_not_a_trial():
+    """The roots of the CMU walker's limbs (every joint spherical: the collars and the hips'
+    first bones, which hang from the chest and the pelvis) stay on their side of the
+    sagittal plane of the body they hang from: the left collar turned 180 degrees about the
+    chest's vertical (the left shoulder where the right one is, the arms traded) is
+    crossed, turned 20 degrees it is not, and the bodies below are not guarded (a hand
+    may reach across)."""
+    import pinocchio as pin
+
+    from kms2pin.ecm.limbs import sides
+
+    from ._tracking import cmu_walker
+
+    robot, qs = cmu_walker()
+    sd = sides(robot)
+    names = {robot.bodies[b]: robot.bodies[a] for b, a in zip(sd.body, sd.anchor)}
+    assert names == {"LHipJoint": "Hips", "RHipJoint": "Hips", "LeftCollar": "Chest", "RightCollar": "Chest"}
+
+    def crossed(q):
+        poses = robot.body_poses(q)
+        return bool(sd.crossed(np.array([[p.rotation for p in poses]]), np.array([[p.translation for p in poses]]))[0])
+
+    assert not any(crossed(x) for x in qs[::10])  # the walk itself never crosses
+    q = qs[0]
+    collar = next(j for j in robot.joints if j.name == "LeftCollar_joint")
+    parent = robot.body_pose(q, collar.spec.parent).rotation
+    up = robot.body_pose(q, "Chest").rotation @ np.array([0.0, 1.0, 0.0])  # the chest's vertical, world
+
+    def turned(deg):  # the left collar turned by deg about the chest's vertical
+        out = q.copy()
+        R = parent @ pin.exp3(np.radians(deg) * (parent.T @ up)) @ parent.T  # the turn, world
+        out[collar.idx_q : collar.idx_q + 4] = pin.Quaternion(parent.T @ R @ parent @ pin.Quaternion(
+            *q[[collar.idx_q + 3, collar.idx_q, collar.idx_q + 1, collar.idx_q + 2]]).matrix()).coeffs()
+        return out
+
+    assert crossed(turned(180.0)) and not crossed(turned(20.0))
+    read, guard = ReachSearch(robot, None)._guard(tuple(range(len(robot.bodies))))
+    assert guard is not None and len(guard.body) == 4
