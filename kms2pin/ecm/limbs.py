@@ -120,11 +120,12 @@ class Sides:
         return (side * self.sign < 0).any(axis=1)
 
 
-def sides(robot: Robot) -> Sides | None:
+def sides(robot: Robot, hinged: Collection[int] = ()) -> Sides | None:
     """The :class:`Sides` of the roots of ``robot``'s twin limbs (:func:`left_right_pairs`):
-    the bodies from the one hanging from a body without a twin down to the first on a
-    spherical joint with a hinge below (a collar and an upper arm, a hip and a thigh), or
-    that first body alone; those off the midline at rest.  None without a sagittal plane."""
+    the bodies from the one hanging from a body without a twin down to the first of
+    ``hinged`` (bodies on a spherical joint with a hinge below: a collar and an upper arm, a
+    hip and a thigh), or that first body alone; those off the midline at rest.  None
+    without a sagittal plane."""
     S = sagittal_mirror(robot)
     if S is None:
         return None
@@ -134,11 +135,7 @@ def sides(robot: Robot) -> Sides | None:
     normal = root @ v[:, int(np.argmin(w))]  # world, at rest
     twins = {k for pair in left_right_pairs(robot.bodies) for k in pair}
     parent = {j.child: j.parent for j in robot.system.joints if j.child is not None}
-    kind = {j.name: j.kind for j in robot.joints}
-    below = {}
-    for j in robot.system.joints:
-        below.setdefault(j.parent, []).append(kind.get(j.name))
-    hinged = {j.child for j in robot.system.joints if kind.get(j.name) == "spherical" and below.get(j.child) == ["revolute"]}
+    hinged = {robot.bodies[i] for i in hinged}
     rows = []
     for i in sorted(twins):
         path = [robot.bodies[i]]  # from body i up to the first body without a twin

@@ -148,7 +148,7 @@ class ReachSearch:
             child, child_body = kids[0] if len(kids) == 1 else (None, None)
             self.reaches[i] = _Reach(i, j, moved, child, child_body, self._span(jid, moved))
         self.directions = sphere_directions(DIRECTIONS)
-        self.sides = sides(robot)
+        self.sides = sides(robot, [r.body for r in self.reaches.values() if r.hinged])
         self._guards: dict[tuple[int, ...], tuple[list[int], Sides | None]] = {}
         self.always = self._always(always, set(feet))
         self.forget()
@@ -301,7 +301,7 @@ class ReachSearch:
             union += u0 + counts[:, 1]
         iou = [i / u if u else 1.0 for i, u in zip(inter.tolist(), union.tolist())]
         crossed = guard.crossed(H[:, :, :3, :3], H[:, :, :3, 3]) if guard is not None else np.zeros(len(trials), bool)
-        crossed[0] = False  # the configuration the trials start from stays a candidate
+        crossed[0] = False  # the pose (or a start already kept; a turn about the bone keeps the guarded centres)
         ranked = [k for k in sorted(range(len(trials)), key=lambda k: (-iou[k], k)) if not crossed[k]]
         return [trials[k] for k in ranked[:keep]]
 
