@@ -32,7 +32,8 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   the mean distance per frame in mm, no alignment: the mean over the frames, the median,
   the 90th percentile, the worst frame, the last 30 frames' mean over the first 30's; knee
   and elbow flexion (the angle between the bones, from the joint positions) RMSE, the
-  knees' and the elbows' apart; frames/s; with one camera the error split along the
+  knees' and the elbows' apart; the same for the track smoothed offline (``track --smooth``
+  at :data:`SMOOTH_HZ`, :mod:`kms2pin.ecm.smoothing`); frames/s; with one camera the error split along the
   camera's rays (the depth one view hardly sees) and across them
   (:func:`kms2pin.ecm.evaluate.ray_parts`).
 - **References**: the *floor*, the model's configuration nearest the subject's true joint
@@ -78,6 +79,7 @@ from kms2pin.commands._outputs import replaced  # noqa: E402
 from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
 from kms2pin.ecm.evaluate import ray_parts  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
+from kms2pin.ecm.smoothing import smooth  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.lang import parse_text  # noqa: E402
 from kms2pin.robot import Robot  # noqa: E402
@@ -89,6 +91,9 @@ BVH = next((d / MOCAP for d in ROOT.parents if (d / MOCAP).exists()), ROOT.paren
 SCALE = 0.05644  # CMU units to metres (the data's README)
 FPS = 30.0
 NOISE = 0.05
+#: the low-pass cutoff of the smoothed rows (Hz; ``track --smooth``): gait analysis's usual
+#: 6 Hz for walking, not tuned here
+SMOOTH_HZ = 6.0
 #: the 13 joints, by the body whose joint point each is (a wrist: the hand's; CMU's 'Neck'
 #: joint, between the lower and the upper neck)
 JOINTS = ("LeftHip", "LeftKnee", "LeftAnkle", "RightHip", "RightKnee", "RightAnkle", "LeftShoulder", "LeftElbow",
@@ -396,6 +401,10 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     print(f"{name:16s} tracked        | {summary(err, flex_rmse(q))} | {fps:5.1f} fr/s | {flagged} frames flagged",
           flush=True)
     row = {"mean": err.mean(), "worst": err.max(), "flexion": flex_rmse(q), "fps": fps}
+    q_smooth = smooth(seq.model, q, FPS, SMOOTH_HZ)
+    err_smooth = joint_errors(seq.model, q_smooth, truth)
+    print(f"{name:16s} smoothed {SMOOTH_HZ:g} Hz  | {summary(err_smooth, flex_rmse(q_smooth))}", flush=True)
+    row |= {"smoothed": err_smooth.mean(), "flexion_smoothed": flex_rmse(q_smooth)}
     if n == 1:  # one view: how much of the error is depth
         along, side = ray_parts(np.array([points(seq.model, x, JOINTS) for x in q]), truth, cameras[0].centre)
         depth, across = np.abs(along).mean(axis=1) * 1e3, side.mean(axis=1) * 1e3

@@ -11,8 +11,9 @@ Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.p
 over the seeds their mean, median, range and standard deviation; the median over the
 seeds of the worst frame (and its range), of the frames above 120 mm, of the legs' (hips, knees, ankles)
 and the arms' (shoulders, elbows, wrists) error; the knees' and elbows' flexion RMSE; the
-silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); frames/s
-of process time (the median of the seeds; every job has a core to itself only with
+silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); the same
+track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
+flexion RMSE; frames/s of process time (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
 standard error, and on how many seeds the variant is better.
@@ -57,7 +58,11 @@ def track_seed(job: tuple) -> dict:
     flex = rm.flexion(pts) - rm.flexion(truth)
     fit, fit_floor = rm.fits(tracker, q, masks), rm.fits(tracker, seq.floor, masks)
     frame = err.mean(axis=1)
-    return {"mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
+    smooth = np.array([rm.points(seq.model, x, rm.JOINTS) for x in rm.smooth(seq.model, q, rm.FPS, rm.SMOOTH_HZ)])
+    flex_smooth = rm.flexion(smooth) - rm.flexion(truth)
+    return {"smoothed": np.linalg.norm(smooth - truth, axis=2).mean() * 1e3,
+            "knees2_smoothed": (flex_smooth[:, :2] ** 2).mean(), "elbows2_smoothed": (flex_smooth[:, 2:] ** 2).mean(),
+            "mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
             "legs": err[:, LEGS].mean(), "arms": err[:, ARMS].mean(), "knees2": (flex[:, :2] ** 2).mean(),
             "elbows2": (flex[:, 2:] ** 2).mean(), "fit": fit.mean(), "fit_floor": fit_floor.mean(),
             "floor_better": float(np.mean(fit_floor > fit)), "fps": fps}
@@ -66,6 +71,7 @@ def track_seed(job: tuple) -> dict:
 def report(label: str, rows: list[dict]) -> str:
     """The figures over the seeds of one case and option set."""
     means = np.array([r["mean"] for r in rows])
+    smoothed = np.array([r["smoothed"] for r in rows])
 
     def med(key: str) -> float:
         return float(np.median([r[key] for r in rows]))
@@ -79,7 +85,11 @@ def report(label: str, rows: list[dict]) -> str:
             f"{med('over120'):.0f} (median; none on {clean} of {len(rows)} seeds); legs {med('legs'):.1f}, arms {med('arms'):.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2'] for r in rows])):.1f}, elbows {np.sqrt(np.mean([r['elbows2'] for r in rows])):.1f} "
             f"deg; fit tracked {med('fit'):.3f}, floor {med('fit_floor'):.3f} (the floor better on "
-            f"{med('floor_better'):.0%} of the frames); {med('fps'):.1f} frames/s (process time)")
+            f"{med('floor_better'):.0%} of the frames); {med('fps'):.1f} frames/s (process time)\n"
+            f"    smoothed at {rm.SMOOTH_HZ:g} Hz (track --smooth): mean {smoothed.mean():.1f} mm, median "
+            f"{np.median(smoothed):.1f}, the seeds' means {np.mean(smoothed - means):+.1f} mm; flexion RMSE knees "
+            f"{np.sqrt(np.mean([r['knees2_smoothed'] for r in rows])):.1f}, elbows "
+            f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg")
 
 
 def paired(base: list[dict], variant: list[dict]) -> str:

@@ -510,3 +510,53 @@ def test_the_flags_the_help_gives_for_a_preset_make_its_options(name):
     by_flags = tracker_options(p.parse_args(preset_flags(PRESETS[name]).split()))
     by_preset = tracker_options(p.parse_args(["--preset", name]))
     assert by_flags == by_preset != tracker_options(p.parse_args([]))
+
+
+def test_smooth_writes_the_low_passed_track_and_evaluate_scores_it(tmp_path, cams2, capsys):
+    """``--smooth HZ``: smoothed.csv beside trajectory.csv (the same frames, numbered alike),
+    the cutoff in meta.json, motion.bvh of the smoothed motion; ``evaluate --smoothed``
+    scores it.  The synthetic walk is smooth: with noisy masks the low-pass is closer to
+    the truth than the per-frame track (checked on real motion capture in
+    benchmarks/realmotion.py)."""
+    masks = _synth(tmp_path, cams2, frames=24, noise=0.05)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--smooth", "6",
+                 "-o", str(out)]) == 0
+    raw, smoothed = ((out / f).read_text().splitlines() for f in ("trajectory.csv", "smoothed.csv"))
+    assert len(smoothed) == len(raw) == 1 + 24
+    assert [r.split(",")[0] for r in smoothed] == [r.split(",")[0] for r in raw]
+    assert json.loads((out / "meta.json").read_text())["smooth_hz"] == 6.0
+    from kms2pin.bvh import to_bvh
+    from kms2pin.ecm import Trajectory
+
+    def numbers(text: str) -> np.ndarray:  # the MOTION section's channels
+        return np.array(text.split("Frame Time:")[1].split()[1:], dtype=float)
+
+    robot = load(LOWER, root="free")
+    written = numbers((out / "motion.bvh").read_text())
+    for name, same in (("smoothed.csv", True), ("trajectory.csv", False)):  # motion.bvh is of the smoothed track
+        motion = numbers(to_bvh(robot, Trajectory.from_csv(robot, out / name).q, 30.0))
+        assert np.allclose(written, motion, atol=1e-6) == same
+    capsys.readouterr()
+    reports = []
+    for extra in ([], ["--smoothed"]):
+        assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json", *extra]) == 0
+        reports.append(json.loads(capsys.readouterr().out))
+    assert reports[0] != reports[1]
+    assert reports[1]["revolute_rmse_deg"] < reports[0]["revolute_rmse_deg"]
+
+
+def test_a_cutoff_at_or_above_half_the_frame_rate_is_a_usage_error_before_anything_is_written(tmp_path, capsys):
+    masks = _synth(tmp_path, frames=2)
+    out = tmp_path / "out"
+    code = main(["track", LOWER, "--masks", str(masks), "--smooth", "15", "-o", str(out)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--smooth 15" in err and "below 15 Hz" in err
+    assert not out.exists()
+
+
+def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked, capsys):
+    out, truth = tracked
+    assert main(["evaluate", str(out), str(truth), "--smoothed"]) == 1
+    assert "no smoothed.csv (written by kms2pin track --smooth HZ)" in capsys.readouterr().err

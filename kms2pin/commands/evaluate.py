@@ -24,6 +24,8 @@ HELP = "accuracy of a track output against the true trajectory"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", metavar="OUT", help="folder written by kms2pin track")
     p.add_argument("truth", metavar="TRUTH.csv", help="true trajectory (truth.csv of kms2pin synth)")
+    p.add_argument("--smoothed", action="store_true",
+                   help="score OUT/smoothed.csv (written by track --smooth) instead of OUT/trajectory.csv")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -36,6 +38,9 @@ def run(args: argparse.Namespace) -> int:
     for name in ("meta.json", "model.kms", "trajectory.csv"):
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
+    track_csv = out / ("smoothed.csv" if args.smoothed else "trajectory.csv")
+    if not track_csv.is_file():
+        raise InputDataError(f"{out}: no smoothed.csv (written by kms2pin track --smooth HZ)")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")
     existing_file(args.truth)
@@ -50,9 +55,9 @@ def run(args: argparse.Namespace) -> int:
               f"({meta_path}: complete false)", file=sys.stderr)
     spec = read_model(str(out / "model.kms"))
     robot = Robot(spec, spec.system(meta.get("system")), meta.get("root", "free"))
-    tracked = Trajectory.from_csv(robot, out / "trajectory.csv")
+    tracked = Trajectory.from_csv(robot, track_csv)
     truth = Trajectory.from_csv(robot, args.truth)
-    for path, traj in ((out / "trajectory.csv", tracked), (args.truth, truth)):
+    for path, traj in ((track_csv, tracked), (args.truth, truth)):
         if len(traj) == 0:
             raise InputDataError(f"{path}: no frames to evaluate (only a header)")
     if first >= len(truth):

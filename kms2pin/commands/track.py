@@ -11,7 +11,8 @@ goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
 is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; unless
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
-`kms2pin evaluate`).
+`kms2pin evaluate`); with --smooth HZ also smoothed.csv, the finished track low-pass
+filtered (:mod:`kms2pin.ecm.smoothing`), which motion.bvh and animation.html then show.
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
@@ -38,7 +39,7 @@ from ..bvh import to_bvh
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
-from ..errors import BvhError, InputDataError, Kms2pinError
+from ..errors import BvhError, InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
@@ -72,6 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=positive, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
+    p.add_argument("--smooth", type=positive, metavar="HZ",
+                   help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
+                        "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
+                        "make motion.bvh and animation.html of it")
     add_tracker_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", action=Once, required=True, metavar="OUT", help="output folder")
@@ -90,7 +95,8 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
     return cameras, names
 
 
-_OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh")
+_OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
+            "smoothed.csv")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -236,6 +242,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
         "options": dataclasses.asdict(tracker.options),
         "complete": False,  # set once every frame is tracked (kms2pin evaluate warns otherwise)
     }
+    if args.smooth is not None:
+        meta |= {"smooth_hz": args.smooth, "fps": args.fps}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -314,9 +322,14 @@ def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scale
 
 
 def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, meta: dict) -> None:
-    """joint_angles.png (video), animation.html, motion.bvh (if the model can be written as BVH)
-    and meta.json complete."""
+    """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html, motion.bvh (if
+    the model can be written as BVH; the last two of the smoothed track with ``--smooth``) and
+    meta.json complete."""
     qs = np.array([r.q for r in results])
+    if args.smooth is not None:  # checked against --fps before tracking (run)
+        qs = Trajectory(robot, qs).smoothed(args.fps, args.smooth).q
+        with replaced(out / "smoothed.csv") as tmp:
+            Trajectory(robot, qs).to_csv(tmp, frames=frames.numbers[: len(qs)])
     if args.video:
         from ..video.track_video import plot_joint_angles
 
@@ -373,6 +386,9 @@ def run(args: argparse.Namespace) -> int:
     # body sizes are measured on the first frame only where its pose is known (the rest pose
     # or --init POSE): at a pose found by the search they would absorb its errors
     fixed = {"calibrate_sizes": False} if auto else {}
+    if args.smooth is not None and not args.smooth < args.fps / 2:
+        raise UsageError(f"--smooth {args.smooth:g}: the cutoff must be below half the frame rate "
+                         f"(--fps {args.fps:g}: below {args.fps / 2:g} Hz)")
     options = tracker_options(args, SEGMENTED_MASKS if video_mode else None, **fixed)
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)

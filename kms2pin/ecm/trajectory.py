@@ -95,6 +95,14 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.q)
 
+    def smoothed(self, fps: float, cutoff_hz: float, order: int = 2) -> Trajectory:
+        """This trajectory low-pass filtered joint by joint at ``cutoff_hz``, forwards and
+        backwards (:func:`kms2pin.ecm.smoothing.smooth`; ``fps`` its frame rate): the
+        same scales, no per-frame results (they belong to the tracked poses)."""
+        from .smoothing import smooth
+
+        return Trajectory(self.robot, smooth(self.robot, self.q, fps, cutoff_hz, order), scales=self.scales)
+
     @staticmethod
     def columns(robot: Robot) -> list[str]:
         """The CSV's joint-coordinate columns: :attr:`Robot.coordinate_names`."""
@@ -105,8 +113,12 @@ class Trajectory:
         spherical joints' X-Y-Z angles in degrees, prismatic offsets in spec units."""
         return self.robot.coordinates(self.q)
 
-    def to_csv(self, path: str | os.PathLike) -> None:
+    def to_csv(self, path: str | os.PathLike, frames: Sequence[int] | None = None) -> None:
+        """Write the CSV (class docstring), numbering the rows ``frames`` (default 0, 1, ...)."""
         extra = bool(self.results)
+        numbers = range(len(self)) if frames is None else list(frames)
+        if len(numbers) != len(self):
+            raise InputDataError(f"frames must number every frame ({len(self)}), not {len(numbers)}")
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["frame", *self.columns(self.robot), *(["fit", "flags"] if extra else [])])
@@ -115,7 +127,7 @@ class Trajectory:
                 if extra:
                     r = self.results[k]
                     tail = [f"{r.fit:.4f}", ";".join(r.flags)]
-                w.writerow([k, *(f"{x:.10g}" for x in row), *tail])
+                w.writerow([numbers[k], *(f"{x:.10g}" for x in row), *tail])
 
     def to_npz(self, path: str | os.PathLike) -> None:
         """Save as NPZ (read back by :meth:`from_npz`), with the arrays
