@@ -5,7 +5,7 @@ change is judged over about twenty seeds, paired.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion_seeds.py --only walk-2cam-320
         --seeds 0-19 [--jobs 2] [--option NAME=VALUE] [--variant NAME=VALUE[,NAME=VALUE...]]
-        [--frames N] [--bvh FILE] [--cache DIR]
+        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways]
 
 Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
 over the seeds their mean, median, range and standard deviation; the median over the
@@ -13,7 +13,9 @@ seeds of the worst frame (and its range), of the frames above 120 mm, of the leg
 and the arms' (shoulders, elbows, wrists) error; the knees' and elbows' flexion RMSE; the
 silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); the same
 track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
-flexion RMSE; frames/s of process time (the median of the seeds; every job has a core to itself only with
+flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways``,
+:mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track; frames/s of
+process time (of the forward track) (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
 standard error, and on how many seeds the variant is better.
@@ -35,6 +37,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import realmotion as rm  # noqa: E402
 
+from kms2pin.ecm.bothways import both_ways  # noqa: E402
+
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
 
@@ -46,7 +50,7 @@ def _sequence(bvh: Path, motion: str, frames: int | None) -> rm.Sequence:
 
 def track_seed(job: tuple) -> dict:
     """One case's track on one seed's masks: its figures (module docstring)."""
-    name, bvh, frames, seed, cache, options = job
+    name, bvh, frames, seed, cache, options, two_ways = job
     motion, n, factor, preset = rm.CASES[name]
     seq = _sequence(bvh, motion, frames)
     cameras = rm.rig(seq.path, n, factor)
@@ -60,7 +64,18 @@ def track_seed(job: tuple) -> dict:
     frame = err.mean(axis=1)
     smooth = np.array([rm.points(seq.model, x, rm.JOINTS) for x in rm.smooth(seq.model, q, rm.FPS, rm.SMOOTH_HZ)])
     flex_smooth = rm.flexion(smooth) - rm.flexion(truth)
-    return {"smoothed": np.linalg.norm(smooth - truth, axis=2).mean() * 1e3,
+    extra = {}
+    if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
+        bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
+        kept = np.array([rm.points(seq.model, x, rm.JOINTS) for x in bw.q])
+        kept_smooth = np.array([rm.points(seq.model, x, rm.JOINTS) for x in rm.smooth(seq.model, bw.q, rm.FPS,
+                                                                                          rm.SMOOTH_HZ)])
+        flex_both = rm.flexion(kept_smooth) - rm.flexion(truth)
+        extra = {"both_ways": np.linalg.norm(kept - truth, axis=2).mean() * 1e3,
+                 "both_smoothed": np.linalg.norm(kept_smooth - truth, axis=2).mean() * 1e3,
+                 "knees2_both": (flex_both[:, :2] ** 2).mean(), "elbows2_both": (flex_both[:, 2:] ** 2).mean(),
+                 "backward": float(bw.backward.mean())}
+    return extra | {"smoothed": np.linalg.norm(smooth - truth, axis=2).mean() * 1e3,
             "knees2_smoothed": (flex_smooth[:, :2] ** 2).mean(), "elbows2_smoothed": (flex_smooth[:, 2:] ** 2).mean(),
             "mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
             "legs": err[:, LEGS].mean(), "arms": err[:, ARMS].mean(), "knees2": (flex[:, :2] ** 2).mean(),
@@ -89,7 +104,22 @@ def report(label: str, rows: list[dict]) -> str:
             f"    smoothed at {rm.SMOOTH_HZ:g} Hz (track --smooth): mean {smoothed.mean():.1f} mm, median "
             f"{np.median(smoothed):.1f}, the seeds' means {np.mean(smoothed - means):+.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2_smoothed'] for r in rows])):.1f}, elbows "
-            f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg")
+            f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg" + _both(rows, means))
+
+
+def _both(rows: list[dict], means: np.ndarray) -> str:
+    """The ``--both-ways`` line of :func:`report` (empty without it)."""
+    if "both_ways" not in rows[0]:
+        return ""
+    both, smoothed = np.array([r["both_ways"] for r in rows]), np.array([r["both_smoothed"] for r in rows])
+    d = both - means
+    se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.1f}" if len(d) > 1 else ""
+    return (f"\n    both ways (track --both-ways): mean {both.mean():.1f} mm, median {np.median(both):.1f} (the backward "
+            f"pose kept on {np.median([r['backward'] for r in rows]):.0%} of the frames, median); against the "
+            f"forward track {d.mean():+.1f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}; smoothed too: mean "
+            f"{smoothed.mean():.1f}, median {np.median(smoothed):.1f}, flexion RMSE knees "
+            f"{np.sqrt(np.mean([r['knees2_both'] for r in rows])):.1f}, elbows "
+            f"{np.sqrt(np.mean([r['elbows2_both'] for r in rows])):.1f} deg")
 
 
 def paired(base: list[dict], variant: list[dict]) -> str:
@@ -120,6 +150,9 @@ def main() -> None:
                    help="a Tracker option for every run, preset and variant (repeatable)")
     p.add_argument("--variant", metavar="NAME=VALUE[,NAME=VALUE...]",
                    help="Tracker options tracked beside the preset on every seed, and compared seed by seed")
+    p.add_argument("--both-ways", action="store_true",
+                   help="also track each seed backwards and report the better-fitting pose of the two per frame "
+                        "(track --both-ways; twice the time)")
     p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
@@ -135,7 +168,8 @@ def main() -> None:
     sets = {"preset": options}
     if a.variant:
         sets["variant"] = {**options, **rm.parse_options(a.variant.split(","), "--variant", p.error)}
-    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts) for name in names for opts in sets.values() for seed in seeds]
+    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways) for name in names for opts in sets.values()
+            for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:
         out = pool.map(track_seed, jobs, chunksize=1)
     k = 0

@@ -560,3 +560,33 @@ def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked
     out, truth = tracked
     assert main(["evaluate", str(out), str(truth), "--smoothed"]) == 1
     assert "no smoothed.csv (written by kms2pin track --smooth HZ)" in capsys.readouterr().err
+
+
+def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, capsys):
+    """``--both-ways``: both_ways.csv (every frame, numbered as trajectory.csv, each row the
+    forward or the backward track's pose, the latter flagged), which ``--smooth`` then
+    smooths; ``evaluate --both-ways`` scores it."""
+    masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--both-ways",
+                 "--smooth", "6", "-o", str(out)]) == 0
+    assert "--both-ways: the backward track's pose kept on" in capsys.readouterr().err
+    assert json.loads((out / "meta.json").read_text())["both_ways"] is True
+    from kms2pin.ecm import Trajectory
+
+    robot = load(LOWER, root="free")
+    raw, kept = (Trajectory.from_csv(robot, out / f).q for f in ("trajectory.csv", "both_ways.csv"))
+    rows = (out / "both_ways.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
+    for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
+        assert ("kept from the backward track" in row) or np.allclose(a, b, atol=1e-8)
+    smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
+    assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
+    assert main(["evaluate", str(out), str(masks / "truth.csv"), "--both-ways", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 10
+
+
+def test_evaluate_both_ways_without_that_track_says_how_to_make_it(tracked, capsys):
+    out, truth = tracked
+    assert main(["evaluate", str(out), str(truth), "--both-ways"]) == 1
+    assert "no both_ways.csv (written by kms2pin track --both-ways)" in capsys.readouterr().err

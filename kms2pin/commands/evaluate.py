@@ -24,8 +24,11 @@ HELP = "accuracy of a track output against the true trajectory"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", metavar="OUT", help="folder written by kms2pin track")
     p.add_argument("truth", metavar="TRUTH.csv", help="true trajectory (truth.csv of kms2pin synth)")
-    p.add_argument("--smoothed", action="store_true",
-                   help="score OUT/smoothed.csv (written by track --smooth) instead of OUT/trajectory.csv")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--smoothed", action="store_true",
+                       help="score OUT/smoothed.csv (written by track --smooth) instead of OUT/trajectory.csv")
+    which.add_argument("--both-ways", action="store_true",
+                       help="score OUT/both_ways.csv (written by track --both-ways) instead of OUT/trajectory.csv")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -38,9 +41,10 @@ def run(args: argparse.Namespace) -> int:
     for name in ("meta.json", "model.kms", "trajectory.csv"):
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
-    track_csv = out / ("smoothed.csv" if args.smoothed else "trajectory.csv")
+    track_csv = out / ("smoothed.csv" if args.smoothed else "both_ways.csv" if args.both_ways else "trajectory.csv")
     if not track_csv.is_file():
-        raise InputDataError(f"{out}: no smoothed.csv (written by kms2pin track --smooth HZ)")
+        flag = "--smooth HZ" if args.smoothed else "--both-ways"
+        raise InputDataError(f"{out}: no {track_csv.name} (written by kms2pin track {flag})")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")
     existing_file(args.truth)

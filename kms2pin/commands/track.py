@@ -28,7 +28,7 @@ import json
 import os
 import shutil
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,6 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", help="rigidBodySystem to use (if the spec has several)")
     p.add_argument("--fps", type=positive, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
+    p.add_argument("--both-ways", action="store_true",
+                   help="also track the frames backwards from the last pose and write both_ways.csv, each frame's "
+                        "better-fitting pose of the two tracks (twice the time; motion.bvh, animation.html and "
+                        "--smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -96,7 +100,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
-            "smoothed.csv")
+            "smoothed.csv", "both_ways.csv")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -244,6 +248,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     }
     if args.smooth is not None:
         meta |= {"smooth_hz": args.smooth, "fps": args.fps}
+    if args.both_ways:
+        meta |= {"both_ways": True}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -321,11 +327,47 @@ def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scale
     return video
 
 
-def _write_end(out: Path, args, robot: Robot, results: list, frames: _Frames, meta: dict) -> None:
+class _Masks(Sequence):
+    """The frames' masks as a sequence, each read when asked for (the backward pass)."""
+
+    def __init__(self, frames: _Frames):
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return len(self.frames.numbers)
+
+    def __getitem__(self, k):
+        return self.frames.load(k)
+
+
+def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, results: list) -> np.ndarray:
+    """``--both-ways``: the frames tracked backwards from the last pose, both_ways.csv
+    written (:mod:`kms2pin.ecm.bothways`); returns the kept poses."""
+    from ..ecm.bothways import both_ways
+
+    progress = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        def progress(it):
+            return tqdm(it, unit="frame", desc="backwards")
+    n = len(results)
+    names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
+    bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, sources=names,
+                   progress=progress)
+    kept = [dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
+            for f, b, back in zip(results, bw.results, bw.backward)]
+    with replaced(out / "both_ways.csv") as tmp:
+        Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
+    print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames",
+          file=sys.stderr)
+    return bw.q
+
+
+def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, meta: dict) -> None:
     """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html, motion.bvh (if
-    the model can be written as BVH; the last two of the smoothed track with ``--smooth``) and
+    the model can be written as BVH; the last two of ``qs``, smoothed with ``--smooth``) and
     meta.json complete."""
-    qs = np.array([r.q for r in results])
     if args.smooth is not None:  # checked against --fps before tracking (run)
         qs = Trajectory(robot, qs).smoothed(args.fps, args.smooth).q
         with replaced(out / "smoothed.csv") as tmp:
@@ -414,6 +456,9 @@ def run(args: argparse.Namespace) -> int:
 
         reacquire = Reacquisition(robot, frames.cameras, q0, reference_fit=init_fit)
     results = _track_frames(args, out, robot, tracker, frames, reacquire)
-    _write_end(out, args, robot, results, frames, meta)
+    qs = np.array([r.q for r in results])
+    if args.both_ways:
+        qs = _track_backwards(args, out, robot, options, frames, results)
+    _write_end(out, args, robot, qs, frames, meta)
     _summary(out, results, frames, tracker.options.silhouette.poor_fit, video_mode)
     return 0
