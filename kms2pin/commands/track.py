@@ -11,8 +11,10 @@ goes), poses.npz (body poses; also written on interruption), overlay.mp4
 (projected inner/outer ellipses over the masks), animation.html (if the viewer
 is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; unless
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
-`kms2pin evaluate`); with --smooth HZ also smoothed.csv, the finished track low-pass
-filtered (:mod:`kms2pin.ecm.smoothing`), which motion.bvh and animation.html then show.
+`kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
+last pose and both_ways.csv keeps each frame's better-fitting pose (kms2pin.ecm.bothways);
+with --smooth HZ smoothed.csv is the finished track low-pass filtered
+(kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
