@@ -319,3 +319,17 @@ def test_a_shorter_video_into_the_same_folder_leaves_only_its_own_masks(clip16, 
     assert f"note: {out}: removed 9 file(s) of an earlier run" in capsys.readouterr().err
     assert sorted(p.name for p in (out / "masks" / "cam0").iterdir()) == [f"frame_{k:05d}.png" for k in range(12)]
     assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 12
+
+
+def test_a_video_tracked_both_ways_and_smoothed(tmp_path, clip16):
+    """``--video`` with ``--both-ways --smooth 6``: the backward pass reads the masks the
+    segmentation saved; both_ways.csv and smoothed.csv number the video's 16 frames."""
+    cam, video = clip16
+    out = tmp_path / "out"
+    assert main([*_write_clip(tmp_path / "clip", video.frames, cam), "--both-ways", "--smooth", "6",
+                 "-o", str(out)]) == 0
+    for name in ("trajectory.csv", "both_ways.csv", "smoothed.csv"):
+        rows = (out / name).read_text().splitlines()
+        assert [r.split(",")[0] for r in rows[1:]] == [str(k) for k in range(16)], name
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["both_ways"] is True and meta["smooth_hz"] == 6.0 and meta["complete"] is True
