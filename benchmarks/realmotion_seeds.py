@@ -15,7 +15,7 @@ silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); 
 track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
 flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways``,
 :mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track; frames/s of
-process time (of the forward track) (the median of the seeds; every job has a core to itself only with
+process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
 standard error, and on how many seeds the variant is better.
@@ -57,30 +57,32 @@ def track_seed(job: tuple) -> dict:
     masks = rm.rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
     q, fps, _, tracker = rm.track(seq, cameras, masks, {**preset, **options}, clock=time.process_time)
     truth = np.array([rm.points(seq.subject, x, rm.JOINTS) for x in seq.q])
-    pts = np.array([rm.points(seq.model, x, rm.JOINTS) for x in q])
-    err = np.linalg.norm(pts - truth, axis=2) * 1e3  # (frames, 13)
-    flex = rm.flexion(pts) - rm.flexion(truth)
+    flex_true = rm.flexion(truth)
+
+    def scored(qs) -> tuple[np.ndarray, np.ndarray]:  # (frames, 13) joint errors (mm), (frames, 4) flexion errors
+        pts = np.array([rm.points(seq.model, x, rm.JOINTS) for x in qs])
+        return np.linalg.norm(pts - truth, axis=2) * 1e3, rm.flexion(pts) - flex_true
+
+    def smoothed(qs) -> tuple[np.ndarray, np.ndarray]:
+        return scored(rm.smooth(seq.model, qs, rm.FPS, rm.SMOOTH_HZ))
+
+    err, flex = scored(q)
     fit, fit_floor = rm.fits(tracker, q, masks), rm.fits(tracker, seq.floor, masks)
     frame = err.mean(axis=1)
-    smooth = np.array([rm.points(seq.model, x, rm.JOINTS) for x in rm.smooth(seq.model, q, rm.FPS, rm.SMOOTH_HZ)])
-    flex_smooth = rm.flexion(smooth) - rm.flexion(truth)
-    extra = {}
+    err_s, flex_s = smoothed(q)
+    row = {"mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
+           "legs": err[:, LEGS].mean(), "arms": err[:, ARMS].mean(), "knees2": (flex[:, :2] ** 2).mean(),
+           "elbows2": (flex[:, 2:] ** 2).mean(), "fit": fit.mean(), "fit_floor": fit_floor.mean(),
+           "floor_better": float(np.mean(fit_floor > fit)), "fps": fps,
+           "smoothed": err_s.mean(), "knees2_smoothed": (flex_s[:, :2] ** 2).mean(),
+           "elbows2_smoothed": (flex_s[:, 2:] ** 2).mean()}
     if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
-        kept = np.array([rm.points(seq.model, x, rm.JOINTS) for x in bw.q])
-        kept_smooth = np.array([rm.points(seq.model, x, rm.JOINTS) for x in rm.smooth(seq.model, bw.q, rm.FPS,
-                                                                                          rm.SMOOTH_HZ)])
-        flex_both = rm.flexion(kept_smooth) - rm.flexion(truth)
-        extra = {"both_ways": np.linalg.norm(kept - truth, axis=2).mean() * 1e3,
-                 "both_smoothed": np.linalg.norm(kept_smooth - truth, axis=2).mean() * 1e3,
-                 "knees2_both": (flex_both[:, :2] ** 2).mean(), "elbows2_both": (flex_both[:, 2:] ** 2).mean(),
-                 "backward": float(bw.backward.mean())}
-    return extra | {"smoothed": np.linalg.norm(smooth - truth, axis=2).mean() * 1e3,
-            "knees2_smoothed": (flex_smooth[:, :2] ** 2).mean(), "elbows2_smoothed": (flex_smooth[:, 2:] ** 2).mean(),
-            "mean": frame.mean(), "worst": frame.max(), "over120": int(np.sum(frame > 120.0)),
-            "legs": err[:, LEGS].mean(), "arms": err[:, ARMS].mean(), "knees2": (flex[:, :2] ** 2).mean(),
-            "elbows2": (flex[:, 2:] ** 2).mean(), "fit": fit.mean(), "fit_floor": fit_floor.mean(),
-            "floor_better": float(np.mean(fit_floor > fit)), "fps": fps}
+        err_b, flex_b = smoothed(bw.q)
+        row |= {"both_ways": scored(bw.q)[0].mean(), "both_smoothed": err_b.mean(),
+                "knees2_both": (flex_b[:, :2] ** 2).mean(), "elbows2_both": (flex_b[:, 2:] ** 2).mean(),
+                "backward": float(bw.backward.mean())}
+    return row
 
 
 def report(label: str, rows: list[dict]) -> str:

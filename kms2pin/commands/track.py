@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
+from ..ecm.bothways import both_ways
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -350,8 +351,6 @@ class _Masks(Sequence):
 def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, results: list) -> np.ndarray:
     """``--both-ways``: the frames tracked backwards from the last pose, both_ways.csv
     written (:mod:`kms2pin.ecm.bothways`); returns the kept poses."""
-    from ..ecm.bothways import both_ways
-
     progress = None
     if not args.no_progress:
         from tqdm import tqdm

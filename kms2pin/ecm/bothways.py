@@ -21,6 +21,7 @@ import numpy as np
 
 from .camera import Camera
 from .options import Preset, TrackerOptions
+from .tracker import Tracker
 from .trajectory import FrameResult
 
 __all__ = ["MARGIN", "BothWays", "both_ways"]
@@ -62,8 +63,6 @@ def both_ways(robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.n
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
     better-fitting pose (module docstring).  ``sources`` names each frame in error
     messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
-    from .tracker import Tracker  # the tracker imports the parts; this module comes after it
-
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
     if forward_q.shape != (n, robot.nq):
@@ -74,8 +73,11 @@ def both_ways(robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.n
     results: list[FrameResult | None] = [None] * n
     for k in progress(order) if progress is not None else order:
         results[k] = tracker.step(masks[k], source=names[k])
-    fit_f = np.array([tracker.fit(forward_q[k], masks[k], source=names[k]) for k in range(n)])
-    fit_b = np.array([tracker.fit(results[k].q, masks[k], source=names[k]) for k in range(n)])
+    fit_f, fit_b = np.empty(n), np.empty(n)
+    for k in range(n):  # both fits at the sizes the backward pass ended with, each frame's masks read once
+        m = masks[k]
+        fit_f[k] = tracker.fit(forward_q[k], m, source=names[k])
+        fit_b[k] = tracker.fit(results[k].q, m, source=names[k])
     back = fit_b > fit_f + margin
     q = np.where(back[:, None], np.array([r.q for r in results]), forward_q)
     return BothWays(q, back, fit_f, fit_b, results)
