@@ -123,21 +123,31 @@ class FrameECM:
         delta = it_opt.delta_start
         limit = it_opt.max_iterations if max_iterations is None else max(1, int(max_iterations))
         tol = np.radians(it_opt.tol_deg)
-        pts = self._outline(q, views.cameras) if it_opt.tol_px is not None else None
+        fewest = min(it_opt.min_iterations, limit)
+        outlines = it_opt.tol_px is not None
+
+        def tested(k: int, d: float) -> bool:  # whether iteration k (edge width d) tests for convergence
+            return k >= fewest and d <= it_opt.delta_final * 1.0001
+
+        # the tests are left out where they cannot stop the loop (a screen's few iterations)
+        pts = self._outline(q, views.cameras) if outlines and tested(1, delta) else None
         for it in range(1, limit + 1):
             if coarse is not None and (binned or delta >= it_opt.coarse_delta_px * 0.9999):
                 q_new = self.iterate(q, coarse, 0.5 * delta, timings)
             else:
                 q_new = self.iterate(q, views, delta, timings)
-            settled = self.motion.change(q, q_new) < tol
-            if pts is not None:
-                pts_new = self._outline(q_new, views.cameras)
-                settled = settled or image_motion(pts, pts_new) < it_opt.tol_px
+            test = tested(it, delta)
+            settled = test and self.motion.change(q, q_new) < tol
+            delta_next = max(it_opt.delta_final, 0.5 * delta)
+            if outlines:
+                pts_new = self._outline(q_new, views.cameras) if it < limit and tested(it + 1, delta_next) or \
+                    (test and not settled) else None
+                if test and not settled:
+                    settled = image_motion(pts, pts_new) < it_opt.tol_px
                 pts = pts_new
             q = q_new
-            at_final = delta <= it_opt.delta_final * 1.0001
-            delta = max(it_opt.delta_final, 0.5 * delta)
-            if at_final and it >= min(it_opt.min_iterations, limit) and settled:
+            delta = delta_next
+            if test and settled:
                 return q, it, True
         return q, it, False
 
