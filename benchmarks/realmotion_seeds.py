@@ -37,7 +37,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import realmotion as rm  # noqa: E402
 
-from kms2pin.ecm.bothways import both_ways  # noqa: E402
+from kms2pin.ecm.bothways import MARGIN, both_ways, choose  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -79,9 +79,16 @@ def track_seed(job: tuple) -> dict:
     if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
         err_b, flex_b = smoothed(bw.q)
-        row |= {"both_ways": scored(bw.q)[0].mean(), "both_smoothed": err_b.mean(),
+        frame_by_frame = choose(bw.fit_forward, bw.fit_backward, bw.apart, MARGIN, 0.0)
+        q_frames = np.where(frame_by_frame[:, None], np.array([r.q for r in bw.results]), q)
+        err_bb, _ = scored(q_frames)
+        err_bw = scored(bw.q)[0]
+        row |= {"both_ways": err_bw.mean(), "both_smoothed": err_b.mean(),
                 "knees2_both": (flex_b[:, :2] ** 2).mean(), "elbows2_both": (flex_b[:, 2:] ** 2).mean(),
-                "backward": float(bw.backward.mean())}
+                "backward": float(bw.backward.mean()), "both_frames": err_bb.mean(),
+                "worst_both": err_bw.mean(axis=1).max(),
+                "over120_both": int(np.sum(err_bw.mean(axis=1) > 120.0)),
+                "both_frames_smoothed": smoothed(q_frames)[0].mean()}
     return row
 
 
@@ -114,14 +121,24 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
     if "both_ways" not in rows[0]:
         return ""
     both, smoothed = np.array([r["both_ways"] for r in rows]), np.array([r["both_smoothed"] for r in rows])
-    d = both - means
-    se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.1f}" if len(d) > 1 else ""
+    frames, frames_s = np.array([r["both_frames"] for r in rows]), np.array([r["both_frames_smoothed"] for r in rows])
+
+    def against(x: np.ndarray) -> str:
+        d = x - means
+        se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.1f}" if len(d) > 1 else ""
+        return f"{d.mean():+.1f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}"
+
     return (f"\n    both ways (track --both-ways): mean {both.mean():.1f} mm, median {np.median(both):.1f} (the backward "
-            f"pose kept on {np.median([r['backward'] for r in rows]):.0%} of the frames, median); against the "
-            f"forward track {d.mean():+.1f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}; smoothed too: mean "
-            f"{smoothed.mean():.1f}, median {np.median(smoothed):.1f}, flexion RMSE knees "
+            f"pose kept on {np.median([r['backward'] for r in rows]):.0%} of the frames, median; worst frame "
+            f"{np.median([r['worst_both'] for r in rows]):.0f}, none above 120 mm on "
+            f"{sum(r['over120_both'] == 0 for r in rows)} of {len(rows)} seeds); against the forward track "
+            f"{against(both)}; smoothed too: mean {smoothed.mean():.1f}, median {np.median(smoothed):.1f} "
+            f"({against(smoothed)}), flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2_both'] for r in rows])):.1f}, elbows "
-            f"{np.sqrt(np.mean([r['elbows2_both'] for r in rows])):.1f} deg")
+            f"{np.sqrt(np.mean([r['elbows2_both'] for r in rows])):.1f} deg\n"
+            f"    both ways frame by frame (choose with switch 0, before the switch cost): mean {frames.mean():.1f}, "
+            f"median {np.median(frames):.1f} ({against(frames)}); smoothed mean {frames_s.mean():.1f}, median "
+            f"{np.median(frames_s):.1f} ({against(frames_s)})")
 
 
 def paired(base: list[dict], variant: list[dict]) -> str:

@@ -12,7 +12,8 @@ goes), poses.npz (body poses; also written on interruption), overlay.mp4
 is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; unless
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
-last pose and both_ways.csv keeps each frame's better-fitting pose (kms2pin.ecm.bothways);
+last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
+track where they agree (kms2pin.ecm.bothways);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -38,7 +39,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
-from ..ecm.bothways import both_ways
+from ..ecm.bothways import MARGIN, SWITCH, both_ways
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -77,9 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=positive, default=30.0, help="frame rate of overlay and animation (default 30)")
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
     p.add_argument("--both-ways", action="store_true",
-                   help="also track the frames backwards from the last pose and write both_ways.csv, each frame's "
-                        "better-fitting pose of the two tracks (twice the time; motion.bvh, animation.html and "
-                        "--smooth then use it)")
+                   help="also track the frames backwards from the last pose and write both_ways.csv, the "
+                        "better-fitting stretches of the two tracks, changing track where they agree (twice the time; "
+                        "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -257,7 +258,7 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     if args.smooth is not None:
         meta |= {"smooth_hz": args.smooth, "fps": args.fps}
     if args.both_ways:
-        meta |= {"both_ways": True}
+        meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,

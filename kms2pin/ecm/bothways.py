@@ -6,10 +6,19 @@ trunk) and finds it again later.  Tracked backwards from the end, the same stret
 entered from its other side, where the limb was found, and it is often lost elsewhere
 or not at all.  :func:`both_ways` runs a second :class:`~kms2pin.ecm.tracker.Tracker`
 (the same model, cameras and options) over the frames in reverse order, started at the
-forward track's last pose, and keeps the backward pose on a frame where its silhouette
-fit (IoU) beats the forward pose's by :data:`MARGIN`; both fits are measured at the
-backward tracker's body sizes after its pass, so the two are scored alike.  It costs a
-second track, and uses the frames after each frame, so it is for a finished recording.
+forward track's last pose, and keeps the backward poses where their silhouette fit
+(IoU) beats the forward poses' by :data:`MARGIN` a frame; both fits are measured at the
+backward tracker's body sizes after its pass, so the two are scored alike.
+
+A pose that fits well is not always right: a track lost for a stretch may fit better
+than the held one on a few of its frames.  Taken frame by frame, those frames would
+make the result jump from one track to the other and back.  So the choice is made over
+the whole sequence (:func:`choose`): each change from one track to the other costs
+:data:`SWITCH` times how far apart the two tracks' poses are where the change is made,
+and the choice of the most fit gained less those costs is kept (a Viterbi pass over the
+two tracks).  A stretch one track lost is taken from the other where that fits better
+over the stretch, entered and left where the two agree.  It costs a second track, and
+uses the frames after each frame, so it is for a finished recording.
 """
 
 from __future__ import annotations
@@ -19,15 +28,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..robot import Robot
 from .camera import Camera
 from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "BothWays", "both_ways"]
+__all__ = ["MARGIN", "SWITCH", "BothWays", "apart", "both_ways", "choose"]
 
-#: the IoU by which the backward pose must fit better to be kept (docs/design/tracking-history.md)
+#: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
+#: the IoU a change from one track to the other costs per model height that the two
+#: tracks' body centres lie apart, on average, where it is made (docs/design/tracking-history.md)
+SWITCH = 1.0
 
 
 @dataclass(frozen=True)
@@ -39,6 +52,7 @@ class BothWays:
         backward: (frames,) True where the backward track's pose was kept.
         fit_forward, fit_backward: (frames,) each track's fit (IoU), at the backward
             tracker's body sizes.
+        apart: (frames,) how far apart the two tracks' poses are (:func:`apart`, model heights).
         results: the backward track's :class:`FrameResult` per frame, in frame order.
     """
 
@@ -46,6 +60,7 @@ class BothWays:
     backward: np.ndarray
     fit_forward: np.ndarray
     fit_backward: np.ndarray
+    apart: np.ndarray
     results: list[FrameResult]
 
     @property
@@ -54,14 +69,53 @@ class BothWays:
         return np.where(self.backward, self.fit_backward, self.fit_forward)
 
 
-def both_ways(robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
-              options: TrackerOptions | Preset | None = None, *, margin: float = MARGIN,
+def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """(frames,) the mean distance between the body centres of ``robot`` at ``qa`` and at
+    ``qb`` (each (frames, nq)), frame by frame, in model heights."""
+    def centres(q: np.ndarray) -> np.ndarray:
+        return np.array([robot.body_pose_arrays(x)[1] for x in q])
+
+    return np.linalg.norm(centres(qa) - centres(qb), axis=2).mean(axis=1) / robot.height
+
+
+def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray, margin: float = MARGIN,
+           switch: float = SWITCH) -> np.ndarray:
+    """(frames,) True where the backward pose is kept: the choice that maximises the fit
+    the backward poses gain over the forward ones (``fit_backward - fit_forward - margin``
+    summed over the frames that take them) less ``switch`` times ``min(apart[k],
+    apart[k + 1])`` for each change of track between frames k and k + 1 (``apart``: how far
+    apart the two tracks' poses are, model heights; the change is made where they agree
+    more).  A Viterbi pass over the two tracks, the forward one kept on a tie; with
+    ``switch`` 0 it is the frame-by-frame choice ``fit_backward > fit_forward + margin``."""
+    gain = np.asarray(fit_backward, dtype=float) - np.asarray(fit_forward, dtype=float) - margin
+    n = len(gain)
+    if switch == 0.0 or n == 0:
+        return gain > 0.0
+    step = switch * np.minimum(apart[:-1], apart[1:])
+    cost = [0.0, -gain[0]]  # the least cost of the frames so far ending forward (0) or backward (1)
+    came = np.zeros((n, 2), dtype=bool)  # whether the best way to (frame, track) changed track there
+    for k in range(1, n):
+        f_stay, f_move = cost[0], cost[1] + step[k - 1]
+        b_stay, b_move = cost[1], cost[0] + step[k - 1]
+        came[k] = (f_move < f_stay, b_move < b_stay)
+        cost = [min(f_stay, f_move), min(b_stay, b_move) - gain[k]]
+    back = np.zeros(n, dtype=bool)
+    s = 1 if cost[1] < cost[0] else 0
+    for k in range(n - 1, -1, -1):
+        back[k] = s == 1
+        s = 1 - s if came[k, s] else s
+    return back
+
+
+def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
+              options: TrackerOptions | Preset | None = None, *, margin: float = MARGIN, switch: float = SWITCH,
               sources: Sequence[str] | None = None, progress: Callable | None = None, **overrides) -> BothWays:
     """Track ``masks`` (a sequence of frames, each one mask per camera) backwards from
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
-    better-fitting pose (module docstring).  ``sources`` names each frame in error
+    better-fitting poses (module docstring; ``margin`` and ``switch`` as in
+    :func:`choose`).  ``sources`` names each frame in error
     messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
@@ -78,6 +132,8 @@ def both_ways(robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.n
         m = masks[k]
         fit_f[k] = tracker.fit(forward_q[k], m, source=names[k])
         fit_b[k] = tracker.fit(results[k].q, m, source=names[k])
-    back = fit_b > fit_f + margin
-    q = np.where(back[:, None], np.array([r.q for r in results]), forward_q)
-    return BothWays(q, back, fit_f, fit_b, results)
+    backward_q = np.array([r.q for r in results])
+    far = apart(robot, forward_q, backward_q)
+    back = choose(fit_f, fit_b, far, margin, switch)
+    q = np.where(back[:, None], backward_q, forward_q)
+    return BothWays(q, back, fit_f, fit_b, far, results)

@@ -10,7 +10,7 @@ import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, make_motion, synthesize
-from kms2pin.ecm.bothways import MARGIN, both_ways
+from kms2pin.ecm.bothways import MARGIN, SWITCH, apart, both_ways, choose
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
 
@@ -60,3 +60,59 @@ def test_frames_are_named_in_errors(walk):
     bad[2] = [m[:-1] for m in bad[2]]  # wrong size in frame 2
     with pytest.raises(kms2pin.Kms2pinError, match="clip.avi: frame 2"):
         both_ways(robot, cams, bad, truth, sources=[f"clip.avi: frame {k}" for k in range(len(bad))])
+
+
+def _brute_force(gain: np.ndarray, step: np.ndarray) -> float:
+    """The least cost over every choice of track per frame (independent of the Viterbi pass)."""
+    best = np.inf
+    n = len(gain)
+    for code in range(2**n):
+        back = np.array([(code >> k) & 1 for k in range(n)], dtype=bool)
+        cost = -gain[back].sum() + step[back[:-1] != back[1:]].sum()
+        best = min(best, cost)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_choice_is_the_least_cost_of_every_choice(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 11))
+    fit_f, fit_b = rng.uniform(0.5, 0.7, n), rng.uniform(0.5, 0.7, n)
+    far = rng.uniform(0.0, 0.3, n) * (rng.random(n) < 0.7)  # the tracks agree on some frames
+    switch, margin = float(rng.uniform(0.05, 1.0)), 0.005
+    back = choose(fit_f, fit_b, far, margin, switch)
+    gain, step = fit_b - fit_f - margin, switch * np.minimum(far[:-1], far[1:])
+    cost = -gain[back].sum() + step[back[:-1] != back[1:]].sum()
+    assert cost == pytest.approx(_brute_force(gain, step), abs=1e-12)
+
+
+def test_without_a_switch_cost_each_frame_is_chosen_on_its_own():
+    rng = np.random.default_rng(1)
+    fit_f, fit_b, far = rng.uniform(0.5, 0.7, 200), rng.uniform(0.5, 0.7, 200), rng.uniform(0, 0.3, 200)
+    assert np.array_equal(choose(fit_f, fit_b, far, 0.005, 0.0), fit_b > fit_f + 0.005)
+
+
+def test_a_lost_stretch_that_fits_better_on_a_few_frames_is_not_taken():
+    # the backward track is lost (far from the forward one) on frames 10-29 and fits better
+    # on three of them by 0.01: frame by frame those would be taken, each a jump there and back
+    n = 40
+    fit_f, fit_b = np.full(n, 0.60), np.full(n, 0.58)
+    fit_b[[12, 20, 27]] = 0.61
+    far = np.full(n, 0.002)
+    far[10:30] = 0.15
+    frame_by_frame = choose(fit_f, fit_b, far, MARGIN, 0.0)
+    assert frame_by_frame.sum() == 3
+    assert not choose(fit_f, fit_b, far, MARGIN, SWITCH).any()
+    # a stretch the forward track lost, where the backward one fits better throughout, is taken
+    # whole, entered and left where the two agree
+    fit_b[10:30] = 0.62
+    back = choose(fit_f, fit_b, far, MARGIN, SWITCH)
+    assert back[10:30].all() and not back[:10].any() and not back[30:].any()
+
+
+def test_apart_is_the_mean_body_centre_distance_in_heights(walk):
+    robot, _, truth, _ = walk
+    moved = truth.copy()
+    moved[:, 0] += 0.3  # the root slid 0.3 along x: every centre moves by 0.3
+    assert np.allclose(apart(robot, truth, moved), 0.3 / robot.height)
+    assert np.array_equal(apart(robot, truth, truth), np.zeros(len(truth)))
