@@ -11,6 +11,7 @@ import pytest
 from conftest import PNG, set_csv_cell
 
 from kms2pin.cli import main
+from kms2pin.ecm.bothways import MARGIN, SWITCH
 from kms2pin.ecm.camera import Camera
 from kms2pin.robot import load
 from kms2pin.video.synthetic import walking_video
@@ -571,7 +572,8 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--both-ways",
                  "--smooth", "6", "-o", str(out)]) == 0
     assert "--both-ways: the backward track's pose kept on" in capsys.readouterr().err
-    assert json.loads((out / "meta.json").read_text())["both_ways"] is True
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["both_ways"] is True and meta["both_ways_switch"] == SWITCH and meta["both_ways_margin"] == MARGIN
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")
