@@ -238,9 +238,9 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
               "(not for a hand; docs/tracking.md); for a real person, --preset people-one-camera", file=sys.stderr)
     if n_cameras == 1 and args.both_ways:
         # the better-fitting pose is not the nearer one in depth: on the real walk with one
-        # camera both ways was worse (docs/design/tracking-history.md)
+        # camera both ways was no better (docs/design/tracking-history.md)
         print("note: --both-ways with one camera: the fit that chooses between the two tracks does not see depth, "
-              "and on a real walk it made the track worse (docs/tracking.md)", file=sys.stderr)
+              "and on a real walk it did not make the track better (docs/tracking.md)", file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
