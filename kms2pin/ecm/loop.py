@@ -140,9 +140,10 @@ class FrameECM:
             settled = test and self.motion.change(q, q_new) < tol
             delta_next = max(it_opt.delta_final, 0.5 * delta)
             if outlines:
-                pts_new = self._outline(q_new, views.cameras) if it < limit and tested(it + 1, delta_next) or \
-                    (test and not settled) else None
-                if test and not settled:
+                compare = test and not settled  # this iteration's outline test
+                needed = compare or (it < limit and tested(it + 1, delta_next))  # or the next one's
+                pts_new = self._outline(q_new, views.cameras) if needed else None
+                if compare:
                     settled = image_motion(pts, pts_new) < it_opt.tol_px
                 pts = pts_new
             q = q_new
