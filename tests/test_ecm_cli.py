@@ -11,7 +11,7 @@ import pytest
 from conftest import PNG, set_csv_cell
 
 from kms2pin.cli import main
-from kms2pin.ecm.bothways import MARGIN, SWITCH
+from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE
 from kms2pin.ecm.camera import Camera
 from kms2pin.robot import load
 from kms2pin.video.synthetic import walking_video
@@ -565,7 +565,8 @@ def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked
 
 def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, capsys):
     """``--both-ways``: both_ways.csv (every frame, numbered as trajectory.csv, each row the
-    forward or the backward track's pose, the latter flagged), which ``--smooth`` then
+    forward or the backward track's pose, the latter flagged, a hinge taken from the other
+    track flagged with its name and the pose's own fit), which ``--smooth`` then
     smooths; ``evaluate --both-ways`` scores it."""
     masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
     out = tmp_path / "out"
@@ -574,6 +575,7 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     assert "--both-ways: the backward track's pose kept on" in capsys.readouterr().err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["both_ways"] is True and meta["both_ways_switch"] == SWITCH and meta["both_ways_margin"] == MARGIN
+    assert meta["both_ways_tolerance"] == TOLERANCE
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")
@@ -581,7 +583,8 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     rows = (out / "both_ways.csv").read_text().splitlines()[1:]
     assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
     for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
-        assert ("kept from the backward track" in row) or np.allclose(a, b, atol=1e-8)
+        assert ("kept from the backward track" in row) or ("' taken from the backward track" in row) \
+            or np.allclose(a, b, atol=1e-8)
     smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
     assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
     assert main(["evaluate", str(out), str(masks / "truth.csv"), "--both-ways", "--json"]) == 0

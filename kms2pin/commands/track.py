@@ -13,7 +13,8 @@ is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; 
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
-track where they agree (kms2pin.ecm.bothways);
+track where they agree, and each frame's better-fitting knees and elbows of the two
+(kms2pin.ecm.bothways);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -39,7 +40,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
-from ..ecm.bothways import MARGIN, SWITCH, both_ways
+from ..ecm.bothways import MARGIN, SWITCH, TOLERANCE, both_ways
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -79,7 +80,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-video", action="store_true", help="skip overlay.mp4")
     p.add_argument("--both-ways", action="store_true",
                    help="also track the frames backwards from the last pose and write both_ways.csv, the "
-                        "better-fitting stretches of the two tracks, changing track where they agree (twice the time; "
+                        "better-fitting stretches of the two tracks, changing track where they agree, then on each frame "
+                        "the better-fitting hinges (knees, elbows) of the two (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
@@ -258,7 +260,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     if args.smooth is not None:
         meta |= {"smooth_hz": args.smooth, "fps": args.fps}
     if args.both_ways:
-        meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH}
+        meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH,
+                 "both_ways_tolerance": TOLERANCE}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -362,12 +365,20 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
     bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, sources=names,
                    progress=progress)
-    kept = [dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
-            for f, b, back in zip(results, bw.results, bw.backward)]
+    kept = []
+    for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
+        r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
+        took = [h for h, t in zip(bw.hinge_names, bw.hinges[k]) if t]
+        if took:  # the pose written is no longer either track's: its own fit (at the backward pass's sizes)
+            side = "forward" if back else "backward"
+            r = dataclasses.replace(r, q=bw.q[k].copy(), body_poses=robot.maximal_coordinates(bw.q[k]),
+                                    fit=float(bw.fit[k]),
+                                    flags=(*r.flags, *(f"'{h}' taken from the {side} track" for h in took)))
+        kept.append(r)
     with replaced(out / "both_ways.csv") as tmp:
         Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
-    print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames",
-          file=sys.stderr)
+    print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames, "
+          f"a hinge taken from the other track on {int(bw.hinges.any(axis=1).sum())}", file=sys.stderr)
     return bw.q
 
 

@@ -17,7 +17,11 @@ the whole sequence (:func:`choose`): each change from one track to the other cos
 :data:`SWITCH` times how far apart the two tracks' poses are where the change is made,
 and the choice of the most fit gained less those costs is kept (a Viterbi pass over the
 two tracks).  A stretch one track lost is taken from the other where that fits better
-over the stretch, entered and left where the two agree.  It costs a second track, and
+over the stretch, entered and left where the two agree; where they agree within
+:data:`TOLERANCE` a change costs nothing.  Then each hinge (a revolute joint: a knee, an
+elbow) is taken, with the joints below it, from the track not kept on each frame where
+that fits better (:func:`take_hinges`): a whole pose's choice turns on the trunk and the
+legs, and leaves an elbow that the other track held better.  It costs a second track, and
 uses the frames after each frame, so it is for a finished recording.
 """
 
@@ -28,19 +32,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import RobotError
 from ..robot import Robot
 from .camera import Camera
 from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWITCH", "BothWays", "apart", "both_ways", "choose"]
+__all__ = ["MARGIN", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "take_hinges"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
 #: the IoU a change from one track to the other costs per model height that the two
 #: tracks' body centres lie apart, on average, where it is made (docs/design/tracking-history.md)
 SWITCH = 1.0
+#: how far apart (model heights, as :func:`apart`) the two tracks may be where a change from
+#: one to the other costs nothing (docs/design/tracking-history.md)
+TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -49,11 +57,16 @@ class BothWays:
 
     Attributes:
         q: (frames, nq) the kept pose of each frame.
-        backward: (frames,) True where the backward track's pose was kept.
+        backward: (frames,) True where the backward track's pose was kept (before the
+            hinges: :attr:`hinges`).
         fit_forward, fit_backward: (frames,) each track's fit (IoU), at the backward
             tracker's body sizes.
         apart: (frames,) how far apart the two tracks' poses are (:func:`apart`, model heights).
         results: the backward track's :class:`FrameResult` per frame, in frame order.
+        fit: (frames,) the fit of :attr:`q`.
+        hinge_names: the model's hinges (:func:`hinges`), in tree order.
+        hinges: (frames, len(hinge_names)) True where that hinge and the joints below it
+            were taken from the track not kept (:func:`take_hinges`).
     """
 
     q: np.ndarray
@@ -62,11 +75,9 @@ class BothWays:
     fit_backward: np.ndarray
     apart: np.ndarray
     results: list[FrameResult]
-
-    @property
-    def fit(self) -> np.ndarray:
-        """(frames,) the kept pose's fit."""
-        return np.where(self.backward, self.fit_backward, self.fit_forward)
+    fit: np.ndarray
+    hinge_names: tuple[str, ...]
+    hinges: np.ndarray
 
 
 def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -79,19 +90,20 @@ def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
 
 
 def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray, margin: float = MARGIN,
-           switch: float = SWITCH) -> np.ndarray:
+           switch: float = SWITCH, tolerance: float = TOLERANCE) -> np.ndarray:
     """(frames,) True where the backward pose is kept: the choice that maximises the fit
     the backward poses gain over the forward ones (``fit_backward - fit_forward - margin``
-    summed over the frames that take them) less ``switch`` times ``min(apart[k],
-    apart[k + 1])`` for each change of track between frames k and k + 1 (``apart``: how far
-    apart the two tracks' poses are, model heights; the change is made where they agree
-    more).  A Viterbi pass over the two tracks, the forward one kept on a tie; with
-    ``switch`` 0 it is the frame-by-frame choice ``fit_backward > fit_forward + margin``."""
+    summed over the frames that take them) less ``switch`` times ``max(min(apart[k],
+    apart[k + 1]) - tolerance, 0)`` for each change of track between frames k and k + 1
+    (``apart``: how far apart the two tracks' poses are, model heights; the change is made
+    where they agree more, and is free where they agree within ``tolerance``).  A Viterbi
+    pass over the two tracks, the forward one kept on a tie; with ``switch`` 0 it is the
+    frame-by-frame choice ``fit_backward > fit_forward + margin``."""
     gain = np.asarray(fit_backward, dtype=float) - np.asarray(fit_forward, dtype=float) - margin
     n = len(gain)
     if switch == 0.0 or n == 0:
         return gain > 0.0
-    step = switch * np.minimum(apart[:-1], apart[1:])
+    step = switch * np.maximum(np.minimum(apart[:-1], apart[1:]) - tolerance, 0.0)
     cost = [0.0, -gain[0]]  # the least cost of the frames so far ending forward (0) or backward (1)
     came = np.zeros((n, 2), dtype=bool)  # whether the best way to (frame, track) changed track there
     for k in range(1, n):
@@ -107,15 +119,52 @@ def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray,
     return back
 
 
+def hinges(robot: Robot) -> tuple[str, ...]:
+    """The names of ``robot``'s revolute joints (a person's knees and elbows), in tree order."""
+    return tuple(j.name for j in robot.joints if j.kind == "revolute")
+
+
+def take_hinges(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndarray, other: np.ndarray,
+                fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each of :func:`hinges` in tree order, on each frame k, taken with the joints below it
+    from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
+    ``fit_q``) where that fits better (``fit(k, pose)``, the IoU); on a model with loops
+    each trial is closed first with the hinge held (:meth:`Robot.project`) and skipped if
+    it cannot be.
+    Returns (q, its fit, (frames, hinges) True where taken)."""
+    pm = robot.model
+    q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
+    names = hinges(robot)
+    taken = np.zeros((len(q), len(names)), dtype=bool)
+    for h, name in enumerate(names):
+        jid = pm.getJointId(name)
+        cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid]])
+        for k in range(len(q)):
+            if np.array_equal(q[k, cols], other[k, cols]):
+                continue
+            trial = q[k].copy()
+            trial[cols] = other[k, cols]
+            if robot.closures:
+                try:
+                    trial = robot.project(trial, hold=[pm.idx_vs[jid]])
+                except RobotError:
+                    continue
+            f = fit(k, trial)
+            if f > fit_q[k]:
+                q[k], fit_q[k], taken[k, h] = trial, f, True
+    return q, fit_q, taken
+
+
 def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
               options: TrackerOptions | Preset | None = None, *, margin: float = MARGIN, switch: float = SWITCH,
-              sources: Sequence[str] | None = None, progress: Callable | None = None, **overrides) -> BothWays:
+              tolerance: float = TOLERANCE, sources: Sequence[str] | None = None, progress: Callable | None = None,
+              **overrides) -> BothWays:
     """Track ``masks`` (a sequence of frames, each one mask per camera) backwards from
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
-    better-fitting poses (module docstring; ``margin`` and ``switch`` as in
-    :func:`choose`).  ``sources`` names each frame in error
+    better-fitting poses, then the better-fitting hinges (module docstring; ``margin``,
+    ``switch`` and ``tolerance`` as in :func:`choose`; :func:`take_hinges`).  ``sources`` names each frame in error
     messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
@@ -134,6 +183,12 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
         fit_b[k] = tracker.fit(results[k].q, m, source=names[k])
     backward_q = np.array([r.q for r in results])
     far = apart(robot, forward_q, backward_q)
-    back = choose(fit_f, fit_b, far, margin, switch)
+    back = choose(fit_f, fit_b, far, margin, switch, tolerance)
     q = np.where(back[:, None], backward_q, forward_q)
-    return BothWays(q, back, fit_f, fit_b, far, results)
+    other = np.where(back[:, None], forward_q, backward_q)
+
+    def fit(k: int, pose: np.ndarray) -> float:
+        return tracker.fit(pose, masks[k], source=names[k])
+
+    q, fit_q, taken = take_hinges(robot, fit, q, other, np.where(back, fit_b, fit_f))
+    return BothWays(q, back, fit_f, fit_b, far, results, fit_q, hinges(robot), taken)

@@ -10,7 +10,7 @@ import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, make_motion, synthesize
-from kms2pin.ecm.bothways import MARGIN, SWITCH, apart, both_ways, choose
+from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, take_hinges
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
 
@@ -43,9 +43,14 @@ def test_a_stretch_the_forward_track_lost_is_taken_from_the_backward_track(walk)
     assert (bw.fit_backward[lost] > bw.fit_forward[lost] + MARGIN).all()
     err_forward, err_kept = _centre_error(robot, forward, truth), _centre_error(robot, bw.q, truth)
     assert err_kept[lost].max() < 0.25 * err_forward[lost].min()
-    # elsewhere the forward poses are the truth: kept unless the backward pose fits better by the margin
-    assert np.array_equal(bw.q[~bw.backward], forward[~bw.backward])
-    assert np.allclose(bw.fit, np.where(bw.backward, bw.fit_backward, bw.fit_forward))
+    # elsewhere the forward poses are the truth: kept unless the backward pose fits better by
+    # the margin, or one of its hinges fits better (then the fit is the kept pose's own)
+    plain = ~bw.backward & ~bw.hinges.any(axis=1)
+    assert np.array_equal(bw.q[plain], forward[plain])
+    whole = ~bw.hinges.any(axis=1)
+    assert np.allclose(bw.fit[whole], np.where(bw.backward, bw.fit_backward, bw.fit_forward)[whole])
+    assert (bw.fit >= np.where(bw.backward, bw.fit_backward, bw.fit_forward)).all()
+    assert bw.hinge_names == tuple(j.name for j in robot.joints if j.kind == "revolute")
 
 
 def test_the_forward_track_must_have_a_pose_per_frame(walk):
@@ -79,9 +84,9 @@ def test_the_choice_is_the_least_cost_of_every_choice(seed):
     n = int(rng.integers(1, 11))
     fit_f, fit_b = rng.uniform(0.5, 0.7, n), rng.uniform(0.5, 0.7, n)
     far = rng.uniform(0.0, 0.3, n) * (rng.random(n) < 0.7)  # the tracks agree on some frames
-    switch, margin = float(rng.uniform(0.05, 1.0)), 0.005
-    back = choose(fit_f, fit_b, far, margin, switch)
-    gain, step = fit_b - fit_f - margin, switch * np.minimum(far[:-1], far[1:])
+    switch, margin, tol = float(rng.uniform(0.05, 1.0)), 0.005, float(rng.choice([0.0, TOLERANCE, 0.1]))
+    back = choose(fit_f, fit_b, far, margin, switch, tol)
+    gain, step = fit_b - fit_f - margin, switch * np.clip(np.minimum(far[:-1], far[1:]) - tol, 0.0, None)
     cost = -gain[back].sum() + step[back[:-1] != back[1:]].sum()
     assert cost == pytest.approx(_brute_force(gain, step), abs=1e-12)
 
@@ -90,6 +95,16 @@ def test_without_a_switch_cost_each_frame_is_chosen_on_its_own():
     rng = np.random.default_rng(1)
     fit_f, fit_b, far = rng.uniform(0.5, 0.7, 200), rng.uniform(0.5, 0.7, 200), rng.uniform(0, 0.3, 200)
     assert np.array_equal(choose(fit_f, fit_b, far, 0.005, 0.0), fit_b > fit_f + 0.005)
+
+
+def test_a_change_where_the_tracks_agree_within_the_tolerance_is_free():
+    rng = np.random.default_rng(2)
+    fit_f, fit_b = rng.uniform(0.5, 0.7, 200), rng.uniform(0.5, 0.7, 200)
+    far = rng.uniform(0, TOLERANCE, 200)  # the tracks agree everywhere: each frame on its own
+    assert np.array_equal(choose(fit_f, fit_b, far, 0.005, SWITCH, TOLERANCE), fit_b > fit_f + 0.005)
+    # without the tolerance the same changes cost: fewer of them are made
+    strict = choose(fit_f, fit_b, far, 0.005, SWITCH, 0.0)
+    assert np.sum(strict[1:] != strict[:-1]) < np.sum((fit_b > fit_f + 0.005)[1:] != (fit_b > fit_f + 0.005)[:-1])
 
 
 def test_a_lost_stretch_that_fits_better_on_a_few_frames_is_not_taken():
@@ -116,3 +131,73 @@ def test_apart_is_the_mean_body_centre_distance_in_heights(walk):
     moved[:, 0] += 0.3  # the root slid 0.3 along x: every centre moves by 0.3
     assert np.allclose(apart(robot, truth, moved), 0.3 / robot.height)
     assert np.array_equal(apart(robot, truth, truth), np.zeros(len(truth)))
+
+
+def _below(robot, name: str) -> np.ndarray:
+    """The q columns of the joint ``name`` and every joint whose chain to the root passes
+    through it (by walking each joint's parents, not Pinocchio's subtrees)."""
+    pm = robot.model
+    top, cols = pm.getJointId(name), []
+    for j in range(1, pm.njoints):
+        k = j
+        while k > 0 and k != top:
+            k = pm.parents[k]
+        if k == top:
+            cols += range(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j])
+    return np.array(sorted(cols))
+
+
+def test_each_hinge_is_taken_with_the_joints_below_it_where_that_fits_better(walk):
+    robot, cams, truth, masks = walk
+    names = hinges(robot)
+    assert names == tuple(j.name for j in robot.joints if j.kind == "revolute")  # the thesis's: every joint
+    knees = [names.index(n) for n in names if "knee" in n]
+    kept = truth.copy()
+    left, right = _below(robot, names[knees[0]]), _below(robot, names[knees[1]])
+    kept[3:7, left[0]] += 0.9  # a knee bent off on frames 3-6 of the kept track, the other right
+    kept[9:12, right] += 0.4  # the other knee and the ankle below it off on frames 9-11
+    rng = np.random.default_rng(0)
+    other = truth.copy()
+    other[:, :3] += 0.01 * rng.standard_normal((len(truth), 3))  # the other track's root a little off
+
+    def fit(k, q):  # an independent score: the negative distance from the truth's coordinates
+        return -float(np.abs(q - truth[k]).sum())
+
+    fits = np.array([fit(k, q) for k, q in enumerate(kept)])
+    q, fit_q, taken = take_hinges(robot, fit, kept, other, fits)
+    frames = np.arange(len(truth))
+    for knee, off in ((knees[0], range(3, 7)), (knees[1], range(9, 12))):
+        # taken by the knee or by a hinge above it (the thesis's hips are hinges too), with
+        # everything below, on exactly the frames it was off
+        above = [h for h, n in enumerate(names) if _below(robot, names[knee])[0] in _below(robot, n)]
+        assert np.array_equal(taken[:, above].any(axis=1), np.isin(frames, off))
+    # a hinge below a knee (an ankle) is not tried again: taken with the knee, it is the other track's
+    below = [h for h, n in enumerate(names) if h not in knees and np.isin(_below(robot, n)[0], np.r_[left, right])]
+    assert below and not taken[:, below].any()
+    assert np.array_equal(q[3:7, left], truth[3:7, left]) and np.array_equal(q[9:12, right], truth[9:12, right])
+    for k in frames:  # what a taken hinge carries is its own columns and those below it, from the other track
+        cols = np.unique(np.concatenate([_below(robot, n) for n, t in zip(names, taken[k]) if t] or [np.array([], int)]))
+        assert np.array_equal(q[k, cols], other[k, cols])
+        rest = np.setdiff1d(np.arange(robot.nq), cols)
+        assert np.array_equal(q[k, rest], kept[k, rest])
+    assert np.array_equal(fit_q, [fit(k, x) for k, x in enumerate(q)]) and (fit_q >= fits).all()
+
+
+def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed():
+    robot = kms2pin.load(DIR / "fourbar.kms")
+    crank = hinges(robot)[0]
+    col = _below(robot, crank)[0]
+    qs = []
+    for a in (0.0, 0.3, 0.6):
+        q = robot.q_rest.copy()
+        q[col] += a
+        qs.append(robot.project(q, hold=[robot.model.joints[robot.model.getJointId(crank)].idx_v]))
+    kept, other = np.array([qs[0], qs[0]]), np.array([qs[1], qs[2]])
+
+    def fit(k, q):  # prefers the other track's crank
+        return -abs(float(q[col] - other[k, col]))
+
+    q, _, taken = take_hinges(robot, fit, kept, other, np.array([fit(k, x) for k, x in enumerate(kept)]))
+    assert taken[:, 0].all()
+    assert np.allclose(q[:, col], other[:, col], atol=1e-6)
+    assert max(robot.closure_residual(x).max() for x in q) < 1e-9
