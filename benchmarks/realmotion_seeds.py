@@ -15,7 +15,7 @@ silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); 
 track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
 flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways``,
 :mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track, and smoothed
-with the whole poses alone (before the hinges); frames/s of
+with the whole poses alone (before the limbs' parts); frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -84,7 +84,7 @@ def track_seed(job: tuple) -> dict:
         q_frames = np.where(frame_by_frame[:, None], np.array([r.q for r in bw.results]), q)
         err_bb, _ = scored(q_frames)
         err_bw = scored(bw.q)[0]
-        q_whole = np.where(bw.backward[:, None], np.array([r.q for r in bw.results]), q)  # before the hinges
+        q_whole = np.where(bw.backward[:, None], np.array([r.q for r in bw.results]), q)  # before the limbs' parts
         _, flex_w = smoothed(q_whole)
         row |= {"both_ways": err_bw.mean(), "both_smoothed": err_b.mean(),
                 "knees2_both": (flex_b[:, :2] ** 2).mean(), "elbows2_both": (flex_b[:, 2:] ** 2).mean(),
@@ -93,7 +93,7 @@ def track_seed(job: tuple) -> dict:
                 "over120_both": int(np.sum(err_bw.mean(axis=1) > 120.0)),
                 "both_frames_smoothed": smoothed(q_frames)[0].mean(),
                 "both_whole_smoothed": smoothed(q_whole)[0].mean(), "elbows2_whole": (flex_w[:, 2:] ** 2).mean(),
-                "hinge_frames": float(bw.hinges.any(axis=1).mean())}
+                "part_frames": float(bw.parts.any(axis=1).mean())}
     return row
 
 
@@ -145,9 +145,9 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
             f"    both ways frame by frame (choose with switch 0, before the switch cost): mean {frames.mean():.1f}, "
             f"median {np.median(frames):.1f} ({against(frames)}); smoothed mean {frames_s.mean():.1f}, median "
             f"{np.median(frames_s):.1f} ({against(frames_s)})\n"
-            f"    both ways, whole poses only (before the hinges, taken on "
-            f"{np.median([r['hinge_frames'] for r in rows]):.0%} of the frames, median), smoothed: mean "
-            f"{whole.mean():.1f}, median {np.median(whole):.1f} ({against(whole)}; the hinges "
+            f"    both ways, whole poses only (before the limbs' parts, taken on "
+            f"{np.median([r['part_frames'] for r in rows]):.0%} of the frames, median), smoothed: mean "
+            f"{whole.mean():.1f}, median {np.median(whole):.1f} ({against(whole)}; the parts "
             f"{np.mean(smoothed - whole):+.2f} mm), elbows {np.sqrt(np.mean([r['elbows2_whole'] for r in rows])):.1f} deg")
 
 

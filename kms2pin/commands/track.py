@@ -13,7 +13,7 @@ is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; 
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
-track where they agree, and each frame's better-fitting knees and elbows of the two
+track where they agree, and each frame's better-fitting hips, knees, shoulders and elbows of the two
 (kms2pin.ecm.bothways);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
@@ -81,7 +81,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--both-ways", action="store_true",
                    help="also track the frames backwards from the last pose and write both_ways.csv, the "
                         "better-fitting stretches of the two tracks, changing track where they agree, then on each frame "
-                        "the better-fitting hinges (knees, elbows) of the two (twice the time; "
+                        "the better-fitting limbs' parts (hips, knees, shoulders, elbows) of the two (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
@@ -368,7 +368,7 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     kept = []
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
-        took = [h for h, t in zip(bw.hinge_names, bw.hinges[k]) if t]
+        took = [h for h, t in zip(bw.part_names, bw.parts[k]) if t]
         if took:  # the pose written is no longer either track's: its own fit (at the backward pass's sizes)
             side = "forward" if back else "backward"
             r = dataclasses.replace(r, q=bw.q[k].copy(), body_poses=robot.maximal_coordinates(bw.q[k]),
@@ -378,7 +378,7 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     with replaced(out / "both_ways.csv") as tmp:
         Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
     print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames, "
-          f"a hinge taken from the other track on {int(bw.hinges.any(axis=1).sum())}", file=sys.stderr)
+          f"a limb's part taken from the other track on {int(bw.parts.any(axis=1).sum())}", file=sys.stderr)
     return bw.q
 
 

@@ -18,11 +18,13 @@ the whole sequence (:func:`choose`): each change from one track to the other cos
 and the choice of the most fit gained less those costs is kept (a Viterbi pass over the
 two tracks).  A stretch one track lost is taken from the other where that fits better
 over the stretch, entered and left where the two agree; where they agree within
-:data:`TOLERANCE` a change costs nothing.  Then each hinge (a revolute joint: a knee, an
-elbow) is taken, with the joints below it, from the track not kept on each frame where
-that fits better (:func:`take_hinges`): a whole pose's choice turns on the trunk and the
-legs, and leaves an elbow that the other track held better.  It costs a second track, and
-uses the frames after each frame, so it is for a finished recording.
+:data:`TOLERANCE` a change costs nothing.  Then each limb's parts, from the top (a hip or a
+shoulder: a ball joint a hinge hangs from, pointed as the other track points it; a knee
+or an elbow: a hinge, at the other track's angle), are taken with the joints below them
+from the track not kept on each frame where that fits better (:func:`take_parts`): a
+whole pose's choice turns on the trunk and the legs, and leaves an arm that the other
+track held better.  It costs a second track, and uses the frames after each frame, so it
+is for a finished recording.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from ..errors import RobotError
 from ..robot import Robot
@@ -39,7 +42,7 @@ from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "take_hinges"]
+__all__ = ["MARGIN", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "parts", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
@@ -58,15 +61,15 @@ class BothWays:
     Attributes:
         q: (frames, nq) the kept pose of each frame.
         backward: (frames,) True where the backward track's pose was kept (before the
-            hinges: :attr:`hinges`).
+            parts: :attr:`parts`).
         fit_forward, fit_backward: (frames,) each track's fit (IoU), at the backward
             tracker's body sizes.
         apart: (frames,) how far apart the two tracks' poses are (:func:`apart`, model heights).
         results: the backward track's :class:`FrameResult` per frame, in frame order.
         fit: (frames,) the fit of :attr:`q`.
-        hinge_names: the model's hinges (:func:`hinges`), in tree order.
-        hinges: (frames, len(hinge_names)) True where that hinge and the joints below it
-            were taken from the track not kept (:func:`take_hinges`).
+        part_names: the joints :func:`take_parts` tries (:func:`parts`), in tree order.
+        parts: (frames, len(part_names)) True where that joint and the joints below it
+            were taken from the track not kept (:func:`take_parts`).
     """
 
     q: np.ndarray
@@ -76,8 +79,8 @@ class BothWays:
     apart: np.ndarray
     results: list[FrameResult]
     fit: np.ndarray
-    hinge_names: tuple[str, ...]
-    hinges: np.ndarray
+    part_names: tuple[str, ...]
+    parts: np.ndarray
 
 
 def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -124,29 +127,52 @@ def hinges(robot: Robot) -> tuple[str, ...]:
     return tuple(j.name for j in robot.joints if j.kind == "revolute")
 
 
-def take_hinges(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndarray, other: np.ndarray,
-                fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each of :func:`hinges` in tree order, on each frame k, taken with the joints below it
-    from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
-    ``fit_q``) where that fits better (``fit(k, pose)``, the IoU); on a model with loops
-    each trial is closed first with the hinge held (:meth:`Robot.project`) and skipped if
-    it cannot be.
-    Returns (q, its fit, (frames, hinges) True where taken)."""
+def parts(robot: Robot) -> tuple[str, ...]:
+    """The joints :func:`take_parts` tries, in tree order: the hinges (:func:`hinges`) and
+    the ball (spherical) joints a hinge hangs from (a person's hips and shoulders)."""
     pm = robot.model
+    above = {pm.names[pm.parents[pm.getJointId(h)]] for h in hinges(robot)}
+    return tuple(j.name for j in robot.joints if j.kind == "revolute" or (j.kind == "spherical" and j.name in above))
+
+
+def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndarray, other: np.ndarray,
+               fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each of :func:`parts` in tree order, on each frame k, taken with the joints below it
+    from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
+    ``fit_q``) where that fits better (``fit(k, pose)``, the IoU).  A hinge takes the other
+    track's angle.  A ball joint takes the rotation that gives the body it moves the other
+    track's orientation in the world, from this track's body above it: a thigh or an upper
+    arm then points as the other track has it, from this track's hip or shoulder (its
+    angles, relative to a trunk the tracks place differently, would point it elsewhere).
+    On a model with loops each trial is closed first with the joint held
+    (:meth:`Robot.project`) and skipped if it cannot be.  Returns (q, its fit, (frames,
+    parts) True where taken)."""
+    pm = robot.model
+    here, there = pm.createData(), pm.createData()
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
-    names = hinges(robot)
+    names = parts(robot)
     taken = np.zeros((len(q), len(names)), dtype=bool)
     for h, name in enumerate(names):
         jid = pm.getJointId(name)
-        cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid]])
+        below = [j for j in pm.subtrees[jid] if j != jid]
+        cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in below] or [np.arange(0)])
+        a, n = pm.idx_qs[jid], pm.nqs[jid]
+        held = list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))
         for k in range(len(q)):
-            if np.array_equal(q[k, cols], other[k, cols]):
-                continue
             trial = q[k].copy()
             trial[cols] = other[k, cols]
+            if n == 1:
+                trial[a] = other[k, a]
+            else:  # a ball joint: this track's parent, the other track's world orientation
+                pin.forwardKinematics(pm, here, q[k])
+                pin.forwardKinematics(pm, there, other[k])
+                above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
+                trial[a:a + n] = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
+            if np.allclose(trial, q[k], rtol=0.0, atol=1e-12):
+                continue
             if robot.closures:
                 try:
-                    trial = robot.project(trial, hold=[pm.idx_vs[jid]])
+                    trial = robot.project(trial, hold=held)
                 except RobotError:
                     continue
             f = fit(k, trial)
@@ -163,8 +189,8 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
-    better-fitting poses, then the better-fitting hinges (module docstring; ``margin``,
-    ``switch`` and ``tolerance`` as in :func:`choose`; :func:`take_hinges`).  ``sources`` names each frame in error
+    better-fitting poses, then the better-fitting limbs' parts (module docstring; ``margin``,
+    ``switch`` and ``tolerance`` as in :func:`choose`; :func:`take_parts`).  ``sources`` names each frame in error
     messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
@@ -190,5 +216,5 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     def fit(k: int, pose: np.ndarray) -> float:
         return tracker.fit(pose, masks[k], source=names[k])
 
-    q, fit_q, taken = take_hinges(robot, fit, q, other, np.where(back, fit_b, fit_f))
-    return BothWays(q, back, fit_f, fit_b, far, results, fit_q, hinges(robot), taken)
+    q, fit_q, taken = take_parts(robot, fit, q, other, np.where(back, fit_b, fit_f))
+    return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken)

@@ -6,11 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, make_motion, synthesize
-from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, take_hinges
+from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, parts, take_parts
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
 
@@ -44,13 +45,13 @@ def test_a_stretch_the_forward_track_lost_is_taken_from_the_backward_track(walk)
     err_forward, err_kept = _centre_error(robot, forward, truth), _centre_error(robot, bw.q, truth)
     assert err_kept[lost].max() < 0.25 * err_forward[lost].min()
     # elsewhere the forward poses are the truth: kept unless the backward pose fits better by
-    # the margin, or one of its hinges fits better (then the fit is the kept pose's own)
-    plain = ~bw.backward & ~bw.hinges.any(axis=1)
+    # the margin, or one of its limbs' parts fits better (then the fit is the kept pose's own)
+    plain = ~bw.backward & ~bw.parts.any(axis=1)
     assert np.array_equal(bw.q[plain], forward[plain])
-    whole = ~bw.hinges.any(axis=1)
+    whole = ~bw.parts.any(axis=1)
     assert np.allclose(bw.fit[whole], np.where(bw.backward, bw.fit_backward, bw.fit_forward)[whole])
     assert (bw.fit >= np.where(bw.backward, bw.fit_backward, bw.fit_forward)).all()
-    assert bw.hinge_names == tuple(j.name for j in robot.joints if j.kind == "revolute")
+    assert bw.part_names == parts(robot) == tuple(j.name for j in robot.joints if j.kind == "revolute")
 
 
 def test_the_forward_track_must_have_a_pose_per_frame(walk):
@@ -149,8 +150,8 @@ def _below(robot, name: str) -> np.ndarray:
 
 def test_each_hinge_is_taken_with_the_joints_below_it_where_that_fits_better(walk):
     robot, cams, truth, masks = walk
-    names = hinges(robot)
-    assert names == tuple(j.name for j in robot.joints if j.kind == "revolute")  # the thesis's: every joint
+    names = parts(robot)
+    assert names == hinges(robot) == tuple(j.name for j in robot.joints if j.kind == "revolute")  # the thesis's
     knees = [names.index(n) for n in names if "knee" in n]
     kept = truth.copy()
     left, right = _below(robot, names[knees[0]]), _below(robot, names[knees[1]])
@@ -164,7 +165,7 @@ def test_each_hinge_is_taken_with_the_joints_below_it_where_that_fits_better(wal
         return -float(np.abs(q - truth[k]).sum())
 
     fits = np.array([fit(k, q) for k, q in enumerate(kept)])
-    q, fit_q, taken = take_hinges(robot, fit, kept, other, fits)
+    q, fit_q, taken = take_parts(robot, fit, kept, other, fits)
     frames = np.arange(len(truth))
     for knee, off in ((knees[0], range(3, 7)), (knees[1], range(9, 12))):
         # taken by the knee or by a hinge above it (the thesis's hips are hinges too), with
@@ -197,7 +198,39 @@ def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed():
     def fit(k, q):  # prefers the other track's crank
         return -abs(float(q[col] - other[k, col]))
 
-    q, _, taken = take_hinges(robot, fit, kept, other, np.array([fit(k, x) for k, x in enumerate(kept)]))
+    q, _, taken = take_parts(robot, fit, kept, other, np.array([fit(k, x) for k, x in enumerate(kept)]))
     assert taken[:, 0].all()
     assert np.allclose(q[:, col], other[:, col], atol=1e-6)
     assert max(robot.closure_residual(x).max() for x in q) < 1e-9
+
+
+def test_a_ball_joint_above_a_hinge_takes_the_other_tracks_world_orientation():
+    """A hip (a ball joint with the knee hanging from it) taken from a track whose pelvis is
+    turned elsewhere: the thigh points in the world as the other track has it, from this
+    track's hip; the knee below is the other track's; nothing above moves."""
+    robot = kms2pin.load(DIR / "human.kms", root="free")
+    assert parts(robot)[:3] == ("leftThigh_hip", "leftShin_knee", "leftFoot_ankle")
+    rng = np.random.default_rng(3)
+    cols = {j.name: slice(j.idx_q, j.idx_q + j.nq) for j in robot.joints}
+    kept, other = robot.q_rest.copy(), robot.q_rest.copy()
+    other[3:7] = pin.Quaternion(pin.exp3(np.array([0.2, 0.7, -0.1]))).coeffs()  # the pelvis turned
+    other[cols["leftThigh_hip"]] = pin.Quaternion(pin.exp3(rng.normal(0, 0.5, 3))).coeffs()
+    other[cols["leftShin_knee"]] = 0.9
+    thigh, shin = robot.bodies.index("leftThigh"), robot.bodies.index("leftShin")
+    target = robot.body_poses(other)[thigh].rotation
+
+    def fit(k, q):  # an independent score: how near the thigh's world orientation is the other's
+        return -float(np.linalg.norm(pin.log3(robot.body_poses(q)[thigh].rotation.T @ target)))
+
+    q, fit_q, taken = take_parts(robot, fit, kept[None], other[None], np.array([fit(0, kept)]))
+    assert taken[0, 0]
+    poses, kept_poses, other_poses = robot.body_poses(q[0]), robot.body_poses(kept), robot.body_poses(other)
+    assert np.allclose(poses[thigh].rotation, target, atol=1e-9)
+    # the thigh hangs from this track's hip: nothing above or beside the leg moves
+    leg = np.r_[_below(robot, "leftThigh_hip")]
+    assert np.array_equal(np.delete(q[0], leg), np.delete(kept, leg))
+    assert not np.allclose(poses[thigh].translation, kept_poses[thigh].translation)  # turned about the hip
+    assert q[0, cols["leftShin_knee"]] == pytest.approx(0.9)
+    assert np.allclose(poses[shin].rotation, other_poses[shin].rotation, atol=1e-9)  # the shin too, the knee's angle kept
+    assert not np.allclose(poses[thigh].translation, other_poses[thigh].translation)  # not the other track's place
+    assert fit_q[0] == pytest.approx(0.0, abs=1e-9)
