@@ -151,6 +151,7 @@ def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndar
     here, there = pm.createData(), pm.createData()
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
     names = parts(robot)
+    kinds = {j.name: j.kind for j in robot.joints}
     taken = np.zeros((len(q), len(names)), dtype=bool)
     for h, name in enumerate(names):
         jid = pm.getJointId(name)
@@ -161,8 +162,8 @@ def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndar
         for k in range(len(q)):
             trial = q[k].copy()
             trial[cols] = other[k, cols]
-            if n == 1:
-                trial[a] = other[k, a]
+            if kinds[name] == "revolute":
+                trial[a:a + n] = other[k, a:a + n]
             else:  # a ball joint: this track's parent, the other track's world orientation
                 pin.forwardKinematics(pm, here, q[k])
                 pin.forwardKinematics(pm, there, other[k])
