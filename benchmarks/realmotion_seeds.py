@@ -85,14 +85,14 @@ def track_seed(job: tuple) -> dict:
         err_bb, _ = scored(q_frames)
         err_bw = scored(bw.q)[0]
         q_whole = np.where(bw.backward[:, None], np.array([r.q for r in bw.results]), q)  # before the limbs' parts
-        _, flex_w = smoothed(q_whole)
+        err_w, flex_w = smoothed(q_whole)
         row |= {"both_ways": err_bw.mean(), "both_smoothed": err_b.mean(),
                 "knees2_both": (flex_b[:, :2] ** 2).mean(), "elbows2_both": (flex_b[:, 2:] ** 2).mean(),
                 "backward": float(bw.backward.mean()), "both_frames": err_bb.mean(),
                 "worst_both": err_bw.mean(axis=1).max(),
                 "over120_both": int(np.sum(err_bw.mean(axis=1) > 120.0)),
                 "both_frames_smoothed": smoothed(q_frames)[0].mean(),
-                "both_whole_smoothed": smoothed(q_whole)[0].mean(), "elbows2_whole": (flex_w[:, 2:] ** 2).mean(),
+                "both_whole_smoothed": err_w.mean(), "elbows2_whole": (flex_w[:, 2:] ** 2).mean(),
                 "part_frames": float(bw.parts.any(axis=1).mean())}
     return row
 

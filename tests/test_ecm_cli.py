@@ -11,7 +11,7 @@ import pytest
 from conftest import PNG, set_csv_cell
 
 from kms2pin.cli import main
-from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE
+from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, parts
 from kms2pin.ecm.camera import Camera
 from kms2pin.robot import load
 from kms2pin.video.synthetic import walking_video
@@ -565,17 +565,18 @@ def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked
 
 def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, capsys):
     """``--both-ways``: both_ways.csv (every frame, numbered as trajectory.csv, each row the
-    forward or the backward track's pose, the latter flagged, a hinge taken from the other
-    track flagged with its name and the pose's own fit), which ``--smooth`` then
+    forward or the backward track's pose, the latter flagged, a limb's part taken from the
+    other track flagged with its name, every row's fit its own pose's), which ``--smooth`` then
     smooths; ``evaluate --both-ways`` scores it."""
     masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
     out = tmp_path / "out"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--both-ways",
                  "--smooth", "6", "-o", str(out)]) == 0
-    assert "--both-ways: the backward track's pose kept on" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--both-ways: the backward track's pose kept on" in err and "a limb's part taken from the other track on" in err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["both_ways"] is True and meta["both_ways_switch"] == SWITCH and meta["both_ways_margin"] == MARGIN
-    assert meta["both_ways_tolerance"] == TOLERANCE
+    assert meta["both_ways_tolerance"] == TOLERANCE and meta["both_ways_parts"] == list(parts(load(LOWER, root="free")))
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
-from ..ecm.bothways import MARGIN, SWITCH, TOLERANCE, both_ways
+from ..ecm.bothways import MARGIN, SWITCH, TOLERANCE, both_ways, parts
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -81,7 +81,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--both-ways", action="store_true",
                    help="also track the frames backwards from the last pose and write both_ways.csv, the "
                         "better-fitting stretches of the two tracks, changing track where they agree, then on each frame "
-                        "the better-fitting limbs' parts (hips, knees, shoulders, elbows) of the two (twice the time; "
+                        "the better-fitting limbs' parts of the two: the hinges and the ball joints above them, a person's "
+                        "hips, knees, shoulders and elbows (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
@@ -261,7 +262,7 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
         meta |= {"smooth_hz": args.smooth, "fps": args.fps}
     if args.both_ways:
         meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH,
-                 "both_ways_tolerance": TOLERANCE}
+                 "both_ways_tolerance": TOLERANCE, "both_ways_parts": list(parts(robot))}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -369,12 +370,11 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
         took = [h for h, t in zip(bw.part_names, bw.parts[k]) if t]
-        if took:  # the pose written is no longer either track's: its own fit (at the backward pass's sizes)
+        if took:  # the pose written is no longer either track's
             side = "forward" if back else "backward"
             r = dataclasses.replace(r, q=bw.q[k].copy(), body_poses=robot.maximal_coordinates(bw.q[k]),
-                                    fit=float(bw.fit[k]),
                                     flags=(*r.flags, *(f"'{h}' taken from the {side} track" for h in took)))
-        kept.append(r)
+        kept.append(dataclasses.replace(r, fit=float(bw.fit[k])))  # every row's fit at the backward pass's sizes
     with replaced(out / "both_ways.csv") as tmp:
         Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
     print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames, "

@@ -123,7 +123,8 @@ def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray,
 
 
 def hinges(robot: Robot) -> tuple[str, ...]:
-    """The names of ``robot``'s revolute joints (a person's knees and elbows), in tree order."""
+    """The names of ``robot``'s revolute joints, in tree order: a person's knees and elbows
+    (on the thesis's models, where every joint is revolute, every joint)."""
     return tuple(j.name for j in robot.joints if j.kind == "revolute")
 
 
@@ -153,13 +154,12 @@ def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndar
     names = parts(robot)
     kinds = {j.name: j.kind for j in robot.joints}
     taken = np.zeros((len(q), len(names)), dtype=bool)
-    for h, name in enumerate(names):
-        jid = pm.getJointId(name)
-        below = [j for j in pm.subtrees[jid] if j != jid]
-        cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in below] or [np.arange(0)])
-        a, n = pm.idx_qs[jid], pm.nqs[jid]
-        held = list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))
-        for k in range(len(q)):
+    for k in range(len(q)):  # the frames are independent; a frame's parts in tree order, each on the last
+        for h, name in enumerate(names):
+            jid = pm.getJointId(name)
+            below = [j for j in pm.subtrees[jid] if j != jid]
+            cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in below] or [np.arange(0)])
+            a, n = pm.idx_qs[jid], pm.nqs[jid]
             trial = q[k].copy()
             trial[cols] = other[k, cols]
             if kinds[name] == "revolute":
@@ -168,12 +168,13 @@ def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndar
                 pin.forwardKinematics(pm, here, q[k])
                 pin.forwardKinematics(pm, there, other[k])
                 above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
-                trial[a:a + n] = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
+                quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
+                trial[a:a + n] = -quat if np.dot(quat, q[k, a:a + n]) < 0 else quat  # the kept sign
             if np.allclose(trial, q[k], rtol=0.0, atol=1e-12):
                 continue
             if robot.closures:
                 try:
-                    trial = robot.project(trial, hold=held)
+                    trial = robot.project(trial, hold=list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid])))
                 except RobotError:
                     continue
             f = fit(k, trial)
@@ -214,8 +215,12 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     q = np.where(back[:, None], backward_q, forward_q)
     other = np.where(back[:, None], forward_q, backward_q)
 
-    def fit(k: int, pose: np.ndarray) -> float:
-        return tracker.fit(pose, masks[k], source=names[k])
+    frame: dict = {}
+
+    def fit(k: int, pose: np.ndarray) -> float:  # take_parts asks frame by frame: each frame's masks read once
+        if frame.get("k") != k:
+            frame.update(k=k, masks=masks[k])
+        return tracker.fit(pose, frame["masks"], source=names[k])
 
     q, fit_q, taken = take_parts(robot, fit, q, other, np.where(back, fit_b, fit_f))
     return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken)
