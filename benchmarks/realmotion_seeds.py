@@ -81,10 +81,11 @@ def track_seed(job: tuple) -> dict:
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
         err_b, flex_b = smoothed(bw.q)
         frame_by_frame = choose(bw.fit_forward, bw.fit_backward, bw.apart, MARGIN, 0.0)
-        q_frames = np.where(frame_by_frame[:, None], np.array([r.q for r in bw.results]), q)
+        q_back = np.array([r.q for r in bw.results])
+        q_frames = np.where(frame_by_frame[:, None], q_back, q)
         err_bb, _ = scored(q_frames)
         err_bw = scored(bw.q)[0]
-        q_whole = np.where(bw.backward[:, None], np.array([r.q for r in bw.results]), q)  # before the limbs' parts
+        q_whole = np.where(bw.backward[:, None], q_back, q)  # before the limbs' parts
         err_w, flex_w = smoothed(q_whole)
         row |= {"both_ways": err_bw.mean(), "both_smoothed": err_b.mean(),
                 "knees2_both": (flex_b[:, :2] ** 2).mean(), "elbows2_both": (flex_b[:, 2:] ** 2).mean(),

@@ -136,48 +136,51 @@ def parts(robot: Robot) -> tuple[str, ...]:
     return tuple(j.name for j in robot.joints if j.kind == "revolute" or (j.kind == "spherical" and j.name in above))
 
 
-def take_parts(robot: Robot, fit: Callable[[int, np.ndarray], float], q: np.ndarray, other: np.ndarray,
-               fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def take_parts(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], float]], q: np.ndarray,
+               other: np.ndarray, fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each of :func:`parts` in tree order, on each frame k, taken with the joints below it
     from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
-    ``fit_q``) where that fits better (``fit(k, pose)``, the IoU).  A hinge takes the other
-    track's angle.  A ball joint takes the rotation that gives the body it moves the other
-    track's orientation in the world, from this track's body above it: a thigh or an upper
-    arm then points as the other track has it, from this track's hip or shoulder (its
-    angles, relative to a trunk the tracks place differently, would point it elsewhere).
-    On a model with loops each trial is closed first with the joint held
-    (:meth:`Robot.project`) and skipped if it cannot be.  Returns (q, its fit, (frames,
-    parts) True where taken)."""
+    ``fit_q``) where that fits better (``scorer(k)``, asked once a frame, scores a pose on
+    frame k: the IoU).  A hinge takes the other track's angle.  A ball joint takes the
+    rotation that gives the body it moves the other track's orientation in the world, from
+    this track's body above it: a thigh or an upper arm then points as the other track has
+    it, from this track's hip or shoulder (its angles, relative to a trunk the tracks place
+    differently, would point it elsewhere).  On a model with loops each trial is closed
+    first with the joint held (:meth:`Robot.project`) and skipped if it cannot be.  Returns
+    (q, its fit, (frames, parts) True where taken)."""
     pm = robot.model
     here, there = pm.createData(), pm.createData()
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
     names = parts(robot)
     kinds = {j.name: j.kind for j in robot.joints}
+    plan = []  # per part: its joint, whether a hinge, its own q columns, those below it, its v columns
+    for name in names:
+        jid = pm.getJointId(name)
+        below = [np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid] if j != jid]
+        plan.append((jid, kinds[name] == "revolute", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
+                     np.concatenate(below or [np.arange(0)]), list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))))
     taken = np.zeros((len(q), len(names)), dtype=bool)
     for k in range(len(q)):  # the frames are independent; a frame's parts in tree order, each on the last
-        for h, name in enumerate(names):
-            jid = pm.getJointId(name)
-            below = [j for j in pm.subtrees[jid] if j != jid]
-            cols = np.concatenate([np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in below] or [np.arange(0)])
-            a, n = pm.idx_qs[jid], pm.nqs[jid]
+        score = scorer(k)
+        pin.forwardKinematics(pm, there, other[k])
+        for h, (jid, hinge, own, cols, held) in enumerate(plan):
             trial = q[k].copy()
             trial[cols] = other[k, cols]
-            if kinds[name] == "revolute":
-                trial[a:a + n] = other[k, a:a + n]
+            if hinge:
+                trial[own] = other[k, own]
             else:  # a ball joint: this track's parent, the other track's world orientation
                 pin.forwardKinematics(pm, here, q[k])
-                pin.forwardKinematics(pm, there, other[k])
                 above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
                 quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
-                trial[a:a + n] = -quat if np.dot(quat, q[k, a:a + n]) < 0 else quat  # the kept sign
+                trial[own] = -quat if np.dot(quat, q[k, own]) < 0 else quat  # the kept sign
             if np.allclose(trial, q[k], rtol=0.0, atol=1e-12):
                 continue
             if robot.closures:
                 try:
-                    trial = robot.project(trial, hold=list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid])))
+                    trial = robot.project(trial, hold=held)
                 except RobotError:
                     continue
-            f = fit(k, trial)
+            f = score(trial)
             if f > fit_q[k]:
                 q[k], fit_q[k], taken[k, h] = trial, f, True
     return q, fit_q, taken
@@ -215,12 +218,9 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     q = np.where(back[:, None], backward_q, forward_q)
     other = np.where(back[:, None], forward_q, backward_q)
 
-    frame: dict = {}
+    def scorer(k: int) -> Callable[[np.ndarray], float]:  # each frame's masks read once for all its trials
+        m = masks[k]
+        return lambda pose: tracker.fit(pose, m, source=names[k])
 
-    def fit(k: int, pose: np.ndarray) -> float:  # take_parts asks frame by frame: each frame's masks read once
-        if frame.get("k") != k:
-            frame.update(k=k, masks=masks[k])
-        return tracker.fit(pose, frame["masks"], source=names[k])
-
-    q, fit_q, taken = take_parts(robot, fit, q, other, np.where(back, fit_b, fit_f))
+    q, fit_q, taken = take_parts(robot, scorer, q, other, np.where(back, fit_b, fit_f))
     return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken)

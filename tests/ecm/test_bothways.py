@@ -168,7 +168,7 @@ def test_each_hinge_is_taken_with_the_joints_below_it_where_that_fits_better(wal
         return -float(np.abs(q - truth[k]).sum())
 
     fits = np.array([fit(k, q) for k, q in enumerate(kept)])
-    q, fit_q, taken = take_parts(robot, fit, kept, other, fits)
+    q, fit_q, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept, other, fits)
     frames = np.arange(len(truth))
     for knee, off in ((knees[0], range(3, 7)), (knees[1], range(9, 12))):
         # taken by the knee or by a hinge above it (the thesis's hips are hinges too), with
@@ -201,7 +201,8 @@ def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed():
     def fit(k, q):  # prefers the other track's crank
         return -abs(float(q[col] - other[k, col]))
 
-    q, _, taken = take_parts(robot, fit, kept, other, np.array([fit(k, x) for k, x in enumerate(kept)]))
+    q, _, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept, other,
+                             np.array([fit(k, x) for k, x in enumerate(kept)]))
     assert taken[:, 0].all()
     assert np.allclose(q[:, col], other[:, col], atol=1e-6)
     assert max(robot.closure_residual(x).max() for x in q) < 1e-9
@@ -232,7 +233,8 @@ def test_a_ball_joint_above_a_hinge_takes_the_other_tracks_world_orientation(pla
     def fit(k, q):  # an independent score: how near the thigh's world orientation is the other's
         return -float(np.linalg.norm(pin.log3(robot.body_poses(q)[thigh].rotation.T @ target)))
 
-    q, fit_q, taken = take_parts(robot, fit, kept[None], other[None], np.array([fit(0, kept)]))
+    q, fit_q, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept[None], other[None],
+                                  np.array([fit(0, kept)]))
     assert taken[0, 0]
     poses, kept_poses, other_poses = robot.body_poses(q[0]), robot.body_poses(kept), robot.body_poses(other)
     assert np.allclose(poses[thigh].rotation, target, atol=1e-9)
