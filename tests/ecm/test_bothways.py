@@ -187,8 +187,40 @@ def test_each_hinge_is_taken_with_the_joints_below_it_where_that_fits_better(wal
     assert np.array_equal(fit_q, [fit(k, x) for k, x in enumerate(q)]) and (fit_q >= fits).all()
 
 
-def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed():
-    robot = kms2pin.load(DIR / "fourbar.kms")
+_FIVE_BAR = """  // two cranks on a floating ground link, two couplers joined at their tips
+double width = 0.025;
+bvec pivot { pos(-0.4, -0.3, 3); orient(0, 0, 1); }
+ellipsoidBody Link(double length) {
+    innerLam(length/2 + width, width, width);
+    outerLam(1.2*(length/2 + width), 1.2*width, 1.2*width);
+    bvec base { pos(-length/2, 0, 0); orient(0, 0, 1); }
+    bvec tip { pos(length/2, 0, 0); orient(0, 0, 1); }
+}
+rigidBodySystem fivebar {
+    Link groundLink(0.8); Link leftCrank(0.3); Link rightCrank(0.3); Link leftCoupler(0.5); Link rightCoupler(0.5);
+    constraint revolute(groundLink.base, leftCrank.base, 90);
+    constraint revolute(groundLink.tip, rightCrank.base, 90);
+    constraint revolute(leftCrank.tip, leftCoupler.base, -53.130102354155978);
+    constraint revolute(rightCrank.tip, rightCoupler.base, 53.130102354155978);
+    constraint revolute(leftCoupler.tip, rightCoupler.tip);
+}
+constraint revolute(pivot, fivebar.groundLink.base);
+"""
+
+
+@pytest.mark.parametrize("mechanism", ["four-bar", "floating five-bar"])
+def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed(mechanism, tmp_path):
+    """A crank taken from the other track, the loop closed again with the crank held.  The
+    five-bar has two degrees of freedom and a free root (each joint's q index one past its
+    velocity index): the crank stays where the other track has it only if the velocity
+    column held is the crank's (holding the next one, the coupler's, moves the crank)."""
+    if mechanism == "four-bar":
+        robot = kms2pin.load(DIR / "fourbar.kms")
+    else:
+        (tmp_path / "fivebar.kms").write_text(_FIVE_BAR)
+        robot = kms2pin.load(tmp_path / "fivebar.kms", root="free")
+        jm = robot.model.joints[robot.model.getJointId(hinges(robot)[0])]
+        assert jm.idx_q == jm.idx_v + 1
     crank = hinges(robot)[0]
     col = _below(robot, crank)[0]
     qs = []
@@ -206,6 +238,36 @@ def test_a_hinge_in_a_loop_is_taken_only_with_the_loop_closed():
     assert taken[:, 0].all()
     assert np.allclose(q[:, col], other[:, col], atol=1e-6)
     assert max(robot.closure_residual(x).max() for x in q) < 1e-9
+
+
+def test_a_part_whose_loop_cannot_be_closed_is_skipped():
+    """The four-bar's rocker 2 rad off in the other track: with the rocker held, no crank and
+    coupler close the loop (the projection's RobotError), so the rocker is not taken, though
+    the score would prefer it; the crank, which closes, still is."""
+    robot = kms2pin.load(DIR / "fourbar.kms")
+    crank, rocker = hinges(robot)[0], hinges(robot)[-1]
+    c, r = _below(robot, crank)[0], robot.model.idx_qs[robot.model.getJointId(rocker)]
+    held = [robot.model.joints[robot.model.getJointId(crank)].idx_v]
+    kept = robot.q_rest.copy()
+    q_crank = kept.copy()
+    q_crank[c] += 0.3
+    other = robot.project(q_crank, hold=held)
+    other[r] = kept[r] + 2.0  # the other track's rocker where the loop cannot reach
+    trial = kept.copy()
+    trial[r] = other[r]
+    with pytest.raises(kms2pin.errors.RobotError):
+        robot.project(trial, hold=[robot.model.joints[robot.model.getJointId(rocker)].idx_v])
+
+    def fit(k, q):  # prefers the other track's crank and rocker alike
+        return -abs(float(q[c] - other[c])) - abs(float(q[r] - other[r]))
+
+    q, fit_q, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept[None], other[None],
+                                 np.array([fit(0, kept)]))
+    names = list(parts(robot))
+    assert taken[0, names.index(crank)] and not taken[0, names.index(rocker)]
+    assert q[0, c] == pytest.approx(other[c], abs=1e-6)
+    assert abs(q[0, r] - other[r]) > 1.0
+    assert robot.closure_residual(q[0]).max() < 1e-9 and fit_q[0] > fit(0, kept)
 
 
 @pytest.mark.parametrize("placement", ["as specified", "turned"])
