@@ -94,7 +94,8 @@ def track_seed(job: tuple) -> dict:
                 "over120_both": int(np.sum(err_bw.mean(axis=1) > 120.0)),
                 "both_frames_smoothed": smoothed(q_frames)[0].mean(),
                 "both_whole_smoothed": err_w.mean(), "elbows2_whole": (flex_w[:, 2:] ** 2).mean(),
-                "part_frames": float(bw.parts.any(axis=1).mean())}
+                "part_frames": float(bw.parts.any(axis=1).mean()),
+                "beside_frames": float(bw.beside.any(axis=1).mean())}
     return row
 
 
@@ -146,8 +147,9 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
             f"    both ways frame by frame (choose with switch 0, before the switch cost): mean {frames.mean():.1f}, "
             f"median {np.median(frames):.1f} ({against(frames)}); smoothed mean {frames_s.mean():.1f}, median "
             f"{np.median(frames_s):.1f} ({against(frames_s)})\n"
-            f"    both ways, whole poses only (before the limbs' parts, taken on "
-            f"{np.median([r['part_frames'] for r in rows]):.0%} of the frames, median), smoothed: mean "
+            f"    both ways, whole poses only (before the limbs' parts, taken from the other track on "
+            f"{np.median([r['part_frames'] for r in rows]):.0%} of the frames and from the frames beside on "
+            f"{np.median([r['beside_frames'] for r in rows]):.0%}, medians), smoothed: mean "
             f"{whole.mean():.1f}, median {np.median(whole):.1f} ({against(whole)}; the parts "
             f"{np.mean(smoothed - whole):+.2f} mm), elbows {np.sqrt(np.mean([r['elbows2_whole'] for r in rows])):.1f} deg")
 

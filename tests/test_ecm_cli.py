@@ -11,7 +11,7 @@ import pytest
 from conftest import PNG, set_csv_cell
 
 from kms2pin.cli import main
-from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, parts
+from kms2pin.ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, parts
 from kms2pin.ecm.camera import Camera
 from kms2pin.robot import load
 from kms2pin.video.synthetic import walking_video
@@ -574,9 +574,11 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
                  "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "--both-ways: the backward track's pose kept on" in err and "a limb's part taken from the other track on" in err
+    assert "and from the frames beside on" in err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["both_ways"] is True and meta["both_ways_switch"] == SWITCH and meta["both_ways_margin"] == MARGIN
     assert meta["both_ways_tolerance"] == TOLERANCE and meta["both_ways_parts"] == list(parts(load(LOWER, root="free")))
+    assert meta["both_ways_sweeps"] == SWEEPS
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")
@@ -585,7 +587,7 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
     for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
         assert ("kept from the backward track" in row) or ("' taken from the backward track" in row) \
-            or np.allclose(a, b, atol=1e-8)
+            or ("' taken from the frames beside it" in row) or np.allclose(a, b, atol=1e-8)
     smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
     assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
     assert main(["evaluate", str(out), str(masks / "truth.csv"), "--both-ways", "--json"]) == 0

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
-from ..ecm.bothways import MARGIN, SWITCH, TOLERANCE, both_ways, parts
+from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, both_ways, parts
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -262,7 +262,7 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
         meta |= {"smooth_hz": args.smooth, "fps": args.fps}
     if args.both_ways:
         meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH,
-                 "both_ways_tolerance": TOLERANCE, "both_ways_parts": list(parts(robot))}
+                 "both_ways_tolerance": TOLERANCE, "both_ways_parts": list(parts(robot)), "both_ways_sweeps": SWEEPS}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -369,16 +369,18 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     kept = []
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
-        took = [h for h, t in zip(bw.part_names, bw.parts[k]) if t]
+        side = "forward" if back else "backward"
+        took = [f"'{h}' taken from the {side} track" for h, t in zip(bw.part_names, bw.parts[k]) if t]
+        took += [f"'{h}' taken from the frames beside it" for h, t in zip(bw.part_names, bw.beside[k]) if t]
         if took:  # the pose written is no longer either track's
-            side = "forward" if back else "backward"
             r = dataclasses.replace(r, q=bw.q[k].copy(), body_poses=robot.maximal_coordinates(bw.q[k]),
-                                    flags=(*r.flags, *(f"'{h}' taken from the {side} track" for h in took)))
+                                    flags=(*r.flags, *took))
         kept.append(dataclasses.replace(r, fit=float(bw.fit[k])))  # every row's fit at the backward pass's sizes
     with replaced(out / "both_ways.csv") as tmp:
         Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
     print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames, "
-          f"a limb's part taken from the other track on {int(bw.parts.any(axis=1).sum())}", file=sys.stderr)
+          f"a limb's part taken from the other track on {int(bw.parts.any(axis=1).sum())} and from the frames "
+          f"beside on {int(bw.beside.any(axis=1).sum())}", file=sys.stderr)
     return bw.q
 
 

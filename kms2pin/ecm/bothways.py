@@ -23,7 +23,9 @@ shoulder: a ball joint a hinge hangs from, pointed as the other track points it;
 or an elbow: a hinge, at the other track's angle), are taken with the joints below them
 from the track not kept on each frame where that fits better (:func:`take_parts`): a
 whole pose's choice turns on the trunk and the legs, and leaves an arm that the other
-track held better.  It costs a second track, and uses the frames after each frame, so it
+track held better.  Last, each part is tried on each frame from the frames beside it
+(:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
+where the masks bear it out.  It costs a second track, and uses the frames after each frame, so it
 is for a finished recording.
 """
 
@@ -42,7 +44,8 @@ from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "parts", "take_parts"]
+__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "parts",
+           "take_beside", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
@@ -52,6 +55,8 @@ SWITCH = 1.0
 #: how far apart (model heights, as :func:`apart`) the two tracks may be where a change from
 #: one to the other costs nothing (docs/design/tracking-history.md)
 TOLERANCE = 0.01
+#: how many passes :func:`take_beside` makes over the frames (docs/design/tracking-history.md)
+SWEEPS = 2
 
 
 @dataclass(frozen=True)
@@ -70,6 +75,8 @@ class BothWays:
         part_names: the joints :func:`take_parts` tries (:func:`parts`), in tree order.
         parts: (frames, len(part_names)) True where that joint and the joints below it
             were taken from the track not kept (:func:`take_parts`).
+        beside: (frames, len(part_names)) True where that joint and the joints below it
+            were then taken from the frames beside (:func:`take_beside`).
     """
 
     q: np.ndarray
@@ -81,6 +88,7 @@ class BothWays:
     fit: np.ndarray
     part_names: tuple[str, ...]
     parts: np.ndarray
+    beside: np.ndarray
 
 
 def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -136,6 +144,53 @@ def parts(robot: Robot) -> tuple[str, ...]:
     return tuple(j.name for j in robot.joints if j.kind == "revolute" or (j.kind == "spherical" and j.name in above))
 
 
+class _Parts:
+    """What :func:`take_parts` and :func:`take_beside` try on a frame: each of :func:`parts`
+    with its joint, columns and held velocities, worked out once."""
+
+    def __init__(self, robot: Robot):
+        pm = self.pm = robot.model
+        self.robot = robot
+        self.here, self.there = pm.createData(), pm.createData()
+        self.names = parts(robot)
+        kinds = {j.name: j.kind for j in robot.joints}
+        self.plan = []  # per part: its joint, whether a hinge, its own q columns, those below it, its v columns
+        for name in self.names:
+            jid = pm.getJointId(name)
+            below = [np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid] if j != jid]
+            self.plan.append((jid, kinds[name] == "revolute", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
+                              np.concatenate(below or [np.arange(0)]),
+                              list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))))
+
+    def take(self, score: Callable[[np.ndarray], float], q: np.ndarray, other: np.ndarray, fit: float,
+             taken: np.ndarray) -> tuple[np.ndarray, float]:
+        """One frame: each part in tree order taken from ``other`` into ``q`` (its ``fit``)
+        where ``score`` is higher, each on the last; ``taken`` (parts,) set where taken."""
+        pm, here, there = self.pm, self.here, self.there
+        pin.forwardKinematics(pm, there, other)
+        for h, (jid, hinge, own, cols, held) in enumerate(self.plan):
+            trial = q.copy()
+            trial[cols] = other[cols]
+            if hinge:
+                trial[own] = other[own]
+            else:  # a ball joint: this track's parent, the other track's world orientation
+                pin.forwardKinematics(pm, here, q)
+                above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
+                quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
+                trial[own] = -quat if np.dot(quat, q[own]) < 0 else quat  # the kept sign
+            if np.allclose(trial, q, rtol=0.0, atol=1e-12):
+                continue
+            if self.robot.closures:
+                try:
+                    trial = self.robot.project(trial, hold=held)
+                except RobotError:
+                    continue
+            f = score(trial)
+            if f > fit:
+                q, fit, taken[h] = trial, f, True
+        return q, fit
+
+
 def take_parts(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], float]], q: np.ndarray,
                other: np.ndarray, fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each of :func:`parts` in tree order, on each frame k, taken with the joints below it
@@ -148,55 +203,60 @@ def take_parts(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], floa
     differently, would point it elsewhere).  On a model with loops each trial is closed
     first with the joint held (:meth:`Robot.project`) and skipped if it cannot be.  Returns
     (q, its fit, (frames, parts) True where taken)."""
-    pm = robot.model
-    here, there = pm.createData(), pm.createData()
+    tried = _Parts(robot)
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
-    names = parts(robot)
-    kinds = {j.name: j.kind for j in robot.joints}
-    plan = []  # per part: its joint, whether a hinge, its own q columns, those below it, its v columns
-    for name in names:
-        jid = pm.getJointId(name)
-        below = [np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid] if j != jid]
-        plan.append((jid, kinds[name] == "revolute", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
-                     np.concatenate(below or [np.arange(0)]), list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))))
-    taken = np.zeros((len(q), len(names)), dtype=bool)
-    for k in range(len(q)):  # the frames are independent; a frame's parts in tree order, each on the last
-        score = scorer(k)
-        pin.forwardKinematics(pm, there, other[k])
-        for h, (jid, hinge, own, cols, held) in enumerate(plan):
-            trial = q[k].copy()
-            trial[cols] = other[k, cols]
-            if hinge:
-                trial[own] = other[k, own]
-            else:  # a ball joint: this track's parent, the other track's world orientation
-                pin.forwardKinematics(pm, here, q[k])
-                above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
-                quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
-                trial[own] = -quat if np.dot(quat, q[k, own]) < 0 else quat  # the kept sign
-            if np.allclose(trial, q[k], rtol=0.0, atol=1e-12):
-                continue
-            if robot.closures:
-                try:
-                    trial = robot.project(trial, hold=held)
-                except RobotError:
-                    continue
-            f = score(trial)
-            if f > fit_q[k]:
-                q[k], fit_q[k], taken[k, h] = trial, f, True
+    taken = np.zeros((len(q), len(tried.names)), dtype=bool)
+    for k in range(len(q)):  # the frames are independent
+        q[k], fit_q[k] = tried.take(scorer(k), q[k], other[k], fit_q[k], taken[k])
     return q, fit_q, taken
+
+
+def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], float]], q: np.ndarray,
+                fit_q: np.ndarray, sweeps: int = SWEEPS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each of :func:`parts` taken on frame k, as :func:`take_parts` takes it, from the
+    frames beside it where that fits better: from the pose halfway between frames k - 1 and
+    k + 1 (``pin.interpolate``), then from frame k - 1, k + 1, k - 2 and k + 2 as they stand.
+    ``sweeps`` passes over the frames, forwards then backwards in turn, each frame on the
+    frames before it as the pass left them, so that a limb a track held on a few frames
+    spreads to the frames on either side where the masks bear it out.  ``scorer`` as in
+    :func:`take_parts` (asked once a frame and pass).  Returns (q, its fit, (frames, parts)
+    True where a part was taken)."""
+    if sweeps < 0:
+        raise ValueError(f"sweeps must be 0 or more, not {sweeps}")
+    tried = _Parts(robot)
+    q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
+    n = len(q)
+    taken = np.zeros((n, len(tried.names)), dtype=bool)
+    for sweep in range(sweeps):
+        for k in (range(n) if sweep % 2 == 0 else range(n - 1, -1, -1)):
+            score = scorer(k)
+            for other in _beside(robot, q, k):
+                q[k], fit_q[k] = tried.take(score, q[k], other, fit_q[k], taken[k])
+    return q, fit_q, taken
+
+
+def _beside(robot: Robot, q: np.ndarray, k: int):
+    """The poses :func:`take_beside` tries on frame k, those of frames outside left out."""
+    n = len(q)
+    if 0 < k < n - 1:
+        yield pin.interpolate(robot.model, q[k - 1], q[k + 1], 0.5)
+    for j in (k - 1, k + 1, k - 2, k + 2):
+        if 0 <= j < n:
+            yield q[j]
 
 
 def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
               options: TrackerOptions | Preset | None = None, *, margin: float = MARGIN, switch: float = SWITCH,
-              tolerance: float = TOLERANCE, sources: Sequence[str] | None = None, progress: Callable | None = None,
-              **overrides) -> BothWays:
+              tolerance: float = TOLERANCE, sweeps: int = SWEEPS, sources: Sequence[str] | None = None,
+              progress: Callable | None = None, **overrides) -> BothWays:
     """Track ``masks`` (a sequence of frames, each one mask per camera) backwards from
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
-    better-fitting poses, then the better-fitting limbs' parts (module docstring; ``margin``,
-    ``switch`` and ``tolerance`` as in :func:`choose`; :func:`take_parts`).  ``sources`` names each frame in error
-    messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
+    better-fitting poses, then the better-fitting limbs' parts, from the other track and then
+    from the frames beside (module docstring; ``margin``, ``switch`` and ``tolerance`` as in
+    :func:`choose`; :func:`take_parts`; ``sweeps`` as in :func:`take_beside`, 0: none).
+    ``sources`` names each frame in error messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
     if forward_q.shape != (n, robot.nq):
@@ -223,4 +283,5 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
         return lambda pose: tracker.fit(pose, m, source=names[k])
 
     q, fit_q, taken = take_parts(robot, scorer, q, other, np.where(back, fit_b, fit_f))
-    return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken)
+    q, fit_q, beside = take_beside(robot, scorer, q, fit_q, sweeps)
+    return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken, beside)

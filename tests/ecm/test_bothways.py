@@ -11,7 +11,8 @@ import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, make_motion, synthesize
-from kms2pin.ecm.bothways import MARGIN, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, parts, take_parts
+from kms2pin.ecm.bothways import (MARGIN, SWEEPS, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, parts,
+                                  take_beside, take_parts)
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
 
@@ -45,13 +46,16 @@ def test_a_stretch_the_forward_track_lost_is_taken_from_the_backward_track(walk)
     err_forward, err_kept = _centre_error(robot, forward, truth), _centre_error(robot, bw.q, truth)
     assert err_kept[lost].max() < 0.25 * err_forward[lost].min()
     # elsewhere the forward poses are the truth: kept unless the backward pose fits better by
-    # the margin, or one of its limbs' parts fits better (then the fit is the kept pose's own)
-    plain = ~bw.backward & ~bw.parts.any(axis=1)
+    # the margin, or one of its limbs' parts fits better, from the other track or from the
+    # frames beside (then the fit is the kept pose's own)
+    assert bw.beside.shape == bw.parts.shape
+    moved = bw.parts.any(axis=1) | bw.beside.any(axis=1)
+    plain = ~bw.backward & ~moved
     assert np.array_equal(bw.q[plain], forward[plain])
     held = np.ones(len(truth), dtype=bool)
     held[lost] = False  # where the forward track is the truth, a part taken moves it by noise only
     assert err_kept[held].max() < 1e-3 * robot.height
-    whole = ~bw.parts.any(axis=1)
+    whole = ~moved
     assert np.allclose(bw.fit[whole], np.where(bw.backward, bw.fit_backward, bw.fit_forward)[whole])
     assert (bw.fit >= np.where(bw.backward, bw.fit_backward, bw.fit_forward)).all()
     assert bw.part_names == parts(robot) == tuple(j.name for j in robot.joints if j.kind == "revolute")
@@ -308,3 +312,56 @@ def test_a_ball_joint_above_a_hinge_takes_the_other_tracks_world_orientation(pla
     assert np.allclose(poses[shin].rotation, other_poses[shin].rotation, atol=1e-9)  # the shin too, the knee's angle kept
     assert not np.allclose(poses[thigh].translation, other_poses[thigh].translation)  # not the other track's place
     assert fit_q[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def _linear_knee(robot, frames: int = 16, step: float = 0.02):
+    """A track whose first knee bends at a constant rate (the rest of the pose at rest): the
+    halfway pose between two frames is the frame between them.  Returns (truth, its knee's
+    q column, the columns below the knee)."""
+    names = parts(robot)
+    knee = next(n for n in names if "knee" in n.lower())
+    cols = _below(robot, knee)
+    truth = np.repeat(robot.q_rest[None], frames, axis=0)
+    truth[:, cols[0]] += step * np.arange(frames)
+    return truth, cols[0], cols
+
+
+def test_a_part_off_on_one_frame_is_taken_from_the_frames_beside_it(walk):
+    robot = walk[0]
+    truth, col, _ = _linear_knee(robot)
+    kept = truth.copy()
+    kept[5, col] += 0.8  # the knee off on frame 5 alone
+    kept[0, col] -= 0.5  # and on the first frame, which has frames on one side only
+
+    def fit(k, q):  # an independent score: the negative distance from the truth's coordinates
+        return -float(np.abs(q - truth[k]).sum())
+
+    q, fit_q, taken = take_beside(robot, lambda k: lambda x: fit(k, x), kept, [fit(k, x) for k, x in enumerate(kept)])
+    assert q[5, col] == pytest.approx(truth[5, col], abs=1e-12)  # halfway between frames 4 and 6: the truth
+    assert abs(q[0, col] - truth[0, col]) <= 0.02 + 1e-12  # frame 1's angle, one step off
+    others = np.setdiff1d(np.arange(len(truth)), [0, 5])
+    assert np.array_equal(q[others], truth[others]) and not taken[others].any()
+    assert taken[[0, 5]].any(axis=1).all()
+    assert np.array_equal(fit_q, [fit(k, x) for k, x in enumerate(q)])
+
+
+def test_a_stretch_of_frames_is_mended_from_both_ends_and_sweeps_0_leaves_it(walk):
+    robot = walk[0]
+    truth, col, _ = _linear_knee(robot)
+    kept = truth.copy()
+    stretch = np.arange(7, 12)
+    kept[stretch, col] += 0.8  # the knee off on five frames together
+
+    def fit(k, q):
+        return -float(np.abs(q - truth[k]).sum())
+
+    fits = np.array([fit(k, x) for k, x in enumerate(kept)])
+    same, _, none = take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits, sweeps=0)
+    assert np.array_equal(same, kept) and not none.any()
+    q, fit_q, taken = take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits)
+    assert SWEEPS >= 1 and taken[stretch].any(axis=1).all()
+    # every frame of the stretch within a few frames' motion of the truth, not 0.8 rad off
+    assert np.abs(q[stretch, col] - truth[stretch, col]).max() < 0.1
+    assert (fit_q >= fits).all() and (fit_q[stretch] > fits[stretch]).all()
+    with pytest.raises(ValueError, match="sweeps"):
+        take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits, sweeps=-1)
