@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -566,7 +567,7 @@ def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked
 def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, capsys):
     """``--both-ways``: both_ways.csv (every frame, numbered as trajectory.csv, each row the
     forward or the backward track's pose, the latter flagged, a limb's part taken from the
-    other track flagged with its name, every row's fit its own pose's), which ``--smooth`` then
+    other track or from the frames beside flagged with its name, every row's fit its own pose's), which ``--smooth`` then
     smooths; ``evaluate --both-ways`` scores it."""
     masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
     out = tmp_path / "out"
@@ -574,7 +575,8 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
                  "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "--both-ways: the backward track's pose kept on" in err and "a limb's part taken from the other track on" in err
-    assert "and from the frames beside on" in err
+    took = re.search(r"taken from the other track on (\d+) and from the frames beside on (\d+)", err)
+    assert took
     meta = json.loads((out / "meta.json").read_text())
     assert meta["both_ways"] is True and meta["both_ways_switch"] == SWITCH and meta["both_ways_margin"] == MARGIN
     assert meta["both_ways_tolerance"] == TOLERANCE and meta["both_ways_parts"] == list(parts(load(LOWER, root="free")))
@@ -585,6 +587,9 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     raw, kept = (Trajectory.from_csv(robot, out / f).q for f in ("trajectory.csv", "both_ways.csv"))
     rows = (out / "both_ways.csv").read_text().splitlines()[1:]
     assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
+    # the note counts the rows flagged
+    assert int(took[1]) == sum("' taken from the forward track" in r or "' taken from the backward track" in r for r in rows)
+    assert int(took[2]) == sum("' taken from the frames beside it" in r for r in rows)
     for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
         assert ("kept from the backward track" in row) or ("' taken from the backward track" in row) \
             or ("' taken from the frames beside it" in row) or np.allclose(a, b, atol=1e-8)

@@ -13,8 +13,8 @@ is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; 
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
-track where they agree, and each frame's better-fitting hips, knees, shoulders and elbows of the two
-(kms2pin.ecm.bothways);
+track where they agree, and each frame's better-fitting hips, knees, shoulders and elbows of the two,
+then of the frames beside it (kms2pin.ecm.bothways);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -82,7 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also track the frames backwards from the last pose and write both_ways.csv, the "
                         "better-fitting stretches of the two tracks, changing track where they agree, then on each frame "
                         "the better-fitting limbs' parts of the two: the hinges and the ball joints above them, a person's "
-                        "hips, knees, shoulders and elbows (twice the time; "
+                        "hips, knees, shoulders and elbows, then of the frames beside it (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
@@ -364,8 +364,8 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
             return tqdm(it, unit="frame", desc="backwards")
     n = len(results)
     names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
-    bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, sources=names,
-                   progress=progress)
+    bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, margin=MARGIN,
+                   switch=SWITCH, tolerance=TOLERANCE, sweeps=SWEEPS, sources=names, progress=progress)
     kept = []
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f

@@ -226,6 +226,8 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
     tried = _Parts(robot)
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
     n = len(q)
+    if fit_q.shape != (n,):
+        raise ValueError(f"fit_q must have one fit per frame of q ({n}), not shape {fit_q.shape}")
     taken = np.zeros((n, len(tried.names)), dtype=bool)
     for sweep in range(sweeps):
         for k in (range(n) if sweep % 2 == 0 else range(n - 1, -1, -1)):
@@ -242,7 +244,7 @@ def _beside(robot: Robot, q: np.ndarray, k: int):
         yield pin.interpolate(robot.model, q[k - 1], q[k + 1], 0.5)
     for j in (k - 1, k + 1, k - 2, k + 2):
         if 0 <= j < n:
-            yield q[j]
+            yield q[j].copy()  # q[k] is written as the frame's parts are taken
 
 
 def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
@@ -256,7 +258,8 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     better-fitting poses, then the better-fitting limbs' parts, from the other track and then
     from the frames beside (module docstring; ``margin``, ``switch`` and ``tolerance`` as in
     :func:`choose`; :func:`take_parts`; ``sweeps`` as in :func:`take_beside`, 0: none).
-    ``sources`` names each frame in error messages (default ``"frame k"``); ``progress`` wraps the frames' iteration (a tqdm)."""
+    ``sources`` names each frame in error messages (default ``"frame k"``); ``progress``
+    wraps the frames' iteration (a tqdm)."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
     if forward_q.shape != (n, robot.nq):

@@ -11,8 +11,19 @@ import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, make_motion, synthesize
-from kms2pin.ecm.bothways import (MARGIN, SWEEPS, SWITCH, TOLERANCE, apart, both_ways, choose, hinges, parts,
-                                  take_beside, take_parts)
+from kms2pin.ecm.bothways import (
+    MARGIN,
+    SWEEPS,
+    SWITCH,
+    TOLERANCE,
+    apart,
+    both_ways,
+    choose,
+    hinges,
+    parts,
+    take_beside,
+    take_parts,
+)
 
 DIR = Path(__file__).resolve().parents[2] / "specs"
 
@@ -317,26 +328,31 @@ def test_a_ball_joint_above_a_hinge_takes_the_other_tracks_world_orientation(pla
 def _linear_knee(robot, frames: int = 16, step: float = 0.02):
     """A track whose first knee bends at a constant rate (the rest of the pose at rest): the
     halfway pose between two frames is the frame between them.  Returns (truth, its knee's
-    q column, the columns below the knee)."""
-    names = parts(robot)
-    knee = next(n for n in names if "knee" in n.lower())
-    cols = _below(robot, knee)
+    q column)."""
+    knee = next(n for n in parts(robot) if "knee" in n.lower())
+    col = _below(robot, knee)[0]
     truth = np.repeat(robot.q_rest[None], frames, axis=0)
-    truth[:, cols[0]] += step * np.arange(frames)
-    return truth, cols[0], cols
+    truth[:, col] += step * np.arange(frames)
+    return truth, col
+
+
+def _distance_from(truth):
+    """An independent score: the negative distance from the truth's coordinates, per frame."""
+    return lambda k: lambda q: -float(np.abs(q - truth[k]).sum())
 
 
 def test_a_part_off_on_one_frame_is_taken_from_the_frames_beside_it(walk):
     robot = walk[0]
-    truth, col, _ = _linear_knee(robot)
+    truth, col = _linear_knee(robot)
     kept = truth.copy()
     kept[5, col] += 0.8  # the knee off on frame 5 alone
     kept[0, col] -= 0.5  # and on the first frame, which has frames on one side only
+    score = _distance_from(truth)
 
-    def fit(k, q):  # an independent score: the negative distance from the truth's coordinates
-        return -float(np.abs(q - truth[k]).sum())
+    def fit(k, q):
+        return score(k)(q)
 
-    q, fit_q, taken = take_beside(robot, lambda k: lambda x: fit(k, x), kept, [fit(k, x) for k, x in enumerate(kept)])
+    q, fit_q, taken = take_beside(robot, score, kept, [fit(k, x) for k, x in enumerate(kept)])
     assert q[5, col] == pytest.approx(truth[5, col], abs=1e-12)  # halfway between frames 4 and 6: the truth
     assert abs(q[0, col] - truth[0, col]) <= 0.02 + 1e-12  # frame 1's angle, one step off
     others = np.setdiff1d(np.arange(len(truth)), [0, 5])
@@ -347,21 +363,88 @@ def test_a_part_off_on_one_frame_is_taken_from_the_frames_beside_it(walk):
 
 def test_a_stretch_of_frames_is_mended_from_both_ends_and_sweeps_0_leaves_it(walk):
     robot = walk[0]
-    truth, col, _ = _linear_knee(robot)
+    truth, col = _linear_knee(robot)
     kept = truth.copy()
     stretch = np.arange(7, 12)
     kept[stretch, col] += 0.8  # the knee off on five frames together
-
-    def fit(k, q):
-        return -float(np.abs(q - truth[k]).sum())
-
-    fits = np.array([fit(k, x) for k, x in enumerate(kept)])
-    same, _, none = take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits, sweeps=0)
+    score = _distance_from(truth)
+    fits = np.array([score(k)(x) for k, x in enumerate(kept)])
+    before = kept.copy()
+    same, _, none = take_beside(robot, score, kept, fits, sweeps=0)
     assert np.array_equal(same, kept) and not none.any()
-    q, fit_q, taken = take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits)
-    assert SWEEPS >= 1 and taken[stretch].any(axis=1).all()
-    # every frame of the stretch within a few frames' motion of the truth, not 0.8 rad off
-    assert np.abs(q[stretch, col] - truth[stretch, col]).max() < 0.1
+    q, fit_q, taken = take_beside(robot, score, kept, fits)
+    assert np.array_equal(kept, before)  # the caller's track is left as it was
+    assert SWEEPS == 2 and taken[stretch].any(axis=1).all()
+    # a forward sweep brings each frame of the stretch to its mended neighbour's angle, a frame's
+    # motion off; the backward sweep then takes the frame after's, which the forward sweep left
+    # one frame's motion off the other way, and the halfway pose: one sweep, two forward sweeps or
+    # no halfway pose leave 0.04-0.06 rad
+    assert np.abs(q[stretch, col] - truth[stretch, col]).max() < 0.025
     assert (fit_q >= fits).all() and (fit_q[stretch] > fits[stretch]).all()
     with pytest.raises(ValueError, match="sweeps"):
-        take_beside(robot, lambda k: lambda x: fit(k, x), kept, fits, sweeps=-1)
+        take_beside(robot, score, kept, fits, sweeps=-1)
+    with pytest.raises(ValueError, match="one fit per frame"):
+        take_beside(robot, score, kept, fits[:-1])
+
+
+def test_a_frame_two_away_is_tried_when_both_neighbours_are_off(walk):
+    """Frames 4 and 6 are the truth but far from frame 5's (the truth itself jumps there), and
+    frame 5 is off: its halfway pose and its neighbours leave it 0.78 rad off at best; frames 3
+    and 7, two away, bring it within two frames' motion."""
+    robot = walk[0]
+    truth, col = _linear_knee(robot)
+    truth[[4, 6], col] += 0.8
+    kept = truth.copy()
+    kept[5, col] += 0.8
+    score = _distance_from(truth)
+    q, _, taken = take_beside(robot, score, kept, [score(k)(x) for k, x in enumerate(kept)])
+    assert abs(q[5, col] - truth[5, col]) == pytest.approx(0.04, abs=1e-12)
+    assert taken[5].any() and np.array_equal(np.delete(q, 5, axis=0), np.delete(truth, 5, axis=0))
+
+
+def test_a_ball_joint_is_taken_from_the_frames_beside_it_as_a_unit_rotation():
+    """A hip (a spherical joint) turning at a constant rate about a fixed axis, off on one
+    frame: the halfway pose (``pin.interpolate``: the quaternions' geodesic) is the truth, so
+    the thigh comes back to the true world orientation, its quaternion of unit length."""
+    robot = kms2pin.load(DIR / "human.kms", root="free")
+    hip = parts(robot)[0]
+    jm = robot.model.joints[robot.model.getJointId(hip)]
+    own = slice(jm.idx_q, jm.idx_q + 4)
+    truth = np.repeat(robot.q_rest[None], 9, axis=0)
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    for k in range(9):
+        truth[k, own] = pin.Quaternion(pin.exp3(0.05 * k * axis)).coeffs()
+    kept = truth.copy()
+    kept[4, own] = pin.Quaternion(pin.exp3(np.array([0.9, 0.2, -0.4]))).coeffs()
+    thigh = robot.bodies.index("leftThigh")
+
+    def score(k):  # how near the thigh's world orientation is the truth's
+        target = robot.body_poses(truth[k])[thigh].rotation
+        return lambda q: -float(np.linalg.norm(pin.log3(robot.body_poses(q)[thigh].rotation.T @ target)))
+
+    q, fit_q, taken = take_beside(robot, score, kept, [score(k)(x) for k, x in enumerate(kept)])
+    assert taken[4, 0]
+    assert np.linalg.norm(q[4, own]) == pytest.approx(1.0, abs=1e-12)
+    assert np.allclose(robot.body_poses(q[4])[thigh].rotation, robot.body_poses(truth[4])[thigh].rotation, atol=1e-9)
+
+
+def test_a_part_from_the_frames_beside_closes_the_loop():
+    """The four-bar's crank turning at a constant rate, off on one frame: the halfway pose of
+    two closed configurations is not closed, and the part is taken only closed again."""
+    robot = kms2pin.load(DIR / "fourbar.kms")
+    crank = hinges(robot)[0]
+    col = _below(robot, crank)[0]
+    held = [robot.model.joints[robot.model.getJointId(crank)].idx_v]
+
+    def closed(a):
+        q = robot.q_rest.copy()
+        q[col] += a
+        return robot.project(q, hold=held)
+
+    truth = np.array([closed(0.05 * k) for k in range(7)])
+    kept = truth.copy()
+    kept[3] = closed(0.6)
+    score = _distance_from(truth)
+    q, _, taken = take_beside(robot, score, kept, [score(k)(x) for k, x in enumerate(kept)])
+    assert taken[3].any() and abs(q[3, col] - truth[3, col]) < 1e-6
+    assert max(robot.closure_residual(x).max() for x in q) < 1e-9
