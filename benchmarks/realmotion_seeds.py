@@ -150,7 +150,7 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
             f"    both ways, whole poses only (before the limbs' parts, taken from the other track on "
             f"{np.median([r['part_frames'] for r in rows]):.0%} of the frames and from the frames beside on "
             f"{np.median([r['beside_frames'] for r in rows]):.0%}, medians), smoothed: mean "
-            f"{whole.mean():.1f}, median {np.median(whole):.1f} ({against(whole)}; the parts "
+            f"{whole.mean():.1f}, median {np.median(whole):.1f} ({against(whole)}; the parts and the frames beside "
             f"{np.mean(smoothed - whole):+.2f} mm), elbows {np.sqrt(np.mean([r['elbows2_whole'] for r in rows])):.1f} deg")
 
 

@@ -25,8 +25,8 @@ from the track not kept on each frame where that fits better (:func:`take_parts`
 whole pose's choice turns on the trunk and the legs, and leaves an arm that the other
 track held better.  Last, each part is tried on each frame from the frames beside it
 (:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
-where the masks bear it out.  It costs a second track, and uses the frames after each frame, so it
-is for a finished recording.
+where the masks bear it out.  It costs a second track, and uses the frames after each
+frame, so it is for a finished recording.
 """
 
 from __future__ import annotations

@@ -348,17 +348,13 @@ def test_a_part_off_on_one_frame_is_taken_from_the_frames_beside_it(walk):
     kept[5, col] += 0.8  # the knee off on frame 5 alone
     kept[0, col] -= 0.5  # and on the first frame, which has frames on one side only
     score = _distance_from(truth)
-
-    def fit(k, q):
-        return score(k)(q)
-
-    q, fit_q, taken = take_beside(robot, score, kept, [fit(k, x) for k, x in enumerate(kept)])
+    q, fit_q, taken = take_beside(robot, score, kept, [score(k)(x) for k, x in enumerate(kept)])
     assert q[5, col] == pytest.approx(truth[5, col], abs=1e-12)  # halfway between frames 4 and 6: the truth
     assert abs(q[0, col] - truth[0, col]) <= 0.02 + 1e-12  # frame 1's angle, one step off
     others = np.setdiff1d(np.arange(len(truth)), [0, 5])
     assert np.array_equal(q[others], truth[others]) and not taken[others].any()
     assert taken[[0, 5]].any(axis=1).all()
-    assert np.array_equal(fit_q, [fit(k, x) for k, x in enumerate(q)])
+    assert np.array_equal(fit_q, [score(k)(x) for k, x in enumerate(q)])
 
 
 def test_a_stretch_of_frames_is_mended_from_both_ends_and_sweeps_0_leaves_it(walk):
