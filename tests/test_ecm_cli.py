@@ -599,6 +599,52 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     assert json.loads(capsys.readouterr().out)["frames"] == 10
 
 
+def test_beside_writes_the_track_with_parts_from_the_frames_beside_and_smooth_uses_it(tmp_path, cams2, capsys):
+    """``--beside``: beside.csv (every frame, numbered as trajectory.csv, a part taken from the
+    frames beside flagged with its name, every other row the forward track's pose), no
+    backward pass; ``--smooth`` then smooths it; ``evaluate --beside`` scores it."""
+    masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--beside",
+                 "--smooth", "6", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    took = re.search(r"--beside: a limb's part taken from the frames beside on (\d+) of 10 frames", err)
+    assert took and "backward" not in err
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["beside"] is True and meta["beside_sweeps"] == SWEEPS and "both_ways" not in meta
+    assert meta["beside_parts"] == list(parts(load(LOWER, root="free")))
+    assert not (out / "both_ways.csv").exists()
+    from kms2pin.ecm import Trajectory
+
+    robot = load(LOWER, root="free")
+    raw, kept = (Trajectory.from_csv(robot, out / f).q for f in ("trajectory.csv", "beside.csv"))
+    rows = (out / "beside.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
+    assert int(took[1]) == sum("' taken from the frames beside it" in r for r in rows)
+    for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
+        assert ("' taken from the frames beside it" in row) or np.allclose(a, b, atol=1e-8)
+    smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
+    assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
+    assert main(["evaluate", str(out), str(masks / "truth.csv"), "--beside", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 10
+
+
+def test_beside_with_both_ways_notes_that_both_ways_takes_the_frames_beside(tmp_path, cams2, capsys):
+    masks = _synth(tmp_path, cams2, frames=4)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--beside", "--both-ways",
+                 "-o", str(out)]) == 0
+    assert "note: --beside with --both-ways: both_ways.csv already takes the frames beside" in capsys.readouterr().err
+    assert (out / "both_ways.csv").is_file() and not (out / "beside.csv").exists()
+    assert "beside" not in json.loads((out / "meta.json").read_text())
+
+
+def test_evaluate_beside_without_that_track_says_how_to_make_it(tracked, capsys):
+    out, truth = tracked
+    assert main(["evaluate", str(out), str(truth), "--beside"]) == 1
+    assert "no beside.csv (written by kms2pin track --beside)" in capsys.readouterr().err
+
+
 def test_evaluate_both_ways_without_that_track_says_how_to_make_it(tracked, capsys):
     out, truth = tracked
     assert main(["evaluate", str(out), str(truth), "--both-ways"]) == 1

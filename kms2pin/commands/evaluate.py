@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="score OUT/smoothed.csv (written by track --smooth) instead of OUT/trajectory.csv")
     which.add_argument("--both-ways", action="store_true",
                        help="score OUT/both_ways.csv (written by track --both-ways) instead of OUT/trajectory.csv")
+    which.add_argument("--beside", action="store_true",
+                       help="score OUT/beside.csv (written by track --beside) instead of OUT/trajectory.csv")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -41,9 +43,10 @@ def run(args: argparse.Namespace) -> int:
     for name in ("meta.json", "model.kms", "trajectory.csv"):
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
-    track_csv = out / ("smoothed.csv" if args.smoothed else "both_ways.csv" if args.both_ways else "trajectory.csv")
+    track_csv = out / ("smoothed.csv" if args.smoothed else "both_ways.csv" if args.both_ways
+                       else "beside.csv" if args.beside else "trajectory.csv")
     if not track_csv.is_file():
-        flag = "--smooth HZ" if args.smoothed else "--both-ways"
+        flag = "--smooth HZ" if args.smoothed else "--both-ways" if args.both_ways else "--beside"
         raise InputDataError(f"{out}: no {track_csv.name} (written by kms2pin track {flag})")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")

@@ -14,7 +14,8 @@ the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
 track where they agree, and each frame's better-fitting hips, knees, shoulders and elbows of the two,
-then of the frames beside it (kms2pin.ecm.bothways);
+then of the frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv
+takes the frames beside on the forward track, without the backward pass;
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -40,7 +41,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
-from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, both_ways, parts
+from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways, parts
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
@@ -84,6 +85,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the better-fitting limbs' parts of the two: the hinges and the ball joints above them, a person's "
                         "hips, knees, shoulders and elbows, then of the frames beside it (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
+    p.add_argument("--beside", action="store_true",
+                   help="also write beside.csv, the track with each limb's parts (as --both-ways takes them) taken on "
+                        "each frame from the frames beside it where that fits better, without the backward pass (a few "
+                        "seconds; motion.bvh, animation.html and --smooth then use it; --both-ways does this itself)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -107,7 +112,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
-            "smoothed.csv", "both_ways.csv")
+            "smoothed.csv", "both_ways.csv", "beside.csv")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -244,6 +249,9 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
         # camera both ways was no better (docs/design/tracking-history.md)
         print("note: --both-ways with one camera: the fit that chooses between the two tracks does not see depth, "
               "and on a real walk it did not make the track better (docs/tracking.md)", file=sys.stderr)
+    if args.beside and args.both_ways:
+        print("note: --beside with --both-ways: both_ways.csv already takes the frames beside, so beside.csv is not "
+              "written", file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
@@ -263,6 +271,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     if args.both_ways:
         meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH,
                  "both_ways_tolerance": TOLERANCE, "both_ways_parts": list(parts(robot)), "both_ways_sweeps": SWEEPS}
+    if args.beside and not args.both_ways:
+        meta |= {"beside": True, "beside_parts": list(parts(robot)), "beside_sweeps": SWEEPS}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -279,9 +289,11 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     return meta
 
 
-def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, reacquire) -> list:
+def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames,
+                  reacquire) -> tuple[list, Tracker]:
     """Track every frame, appending trajectory.csv rows and overlay frames as they
-    finish; poses.npz is written also when interrupted.  Returns the results."""
+    finish; poses.npz is written also when interrupted.  Returns the results and the
+    tracker of the last frame (a re-acquisition starts a new one)."""
     video, results = None, []
     iterator = range(len(frames.numbers))
     if not args.no_progress:
@@ -324,7 +336,7 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
         if results:
             with replaced(out / "poses.npz") as tmp:
                 Trajectory(robot, np.array([r.q for r in results]), results, scales=tracker.scales).to_npz(tmp)
-    return results
+    return results, tracker
 
 
 def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scales):
@@ -382,6 +394,27 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
           f"a limb's part taken from the other track on {int(bw.parts.any(axis=1).sum())} and from the frames "
           f"beside on {int(bw.beside.any(axis=1).sum())}", file=sys.stderr)
     return bw.q
+
+
+def _take_beside(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list) -> np.ndarray:
+    """``--beside`` (without ``--both-ways``): beside.csv, the forward track with each
+    limb's parts taken from the frames beside (:func:`kms2pin.ecm.bothways.beside`, the
+    fits at the last frame's body sizes); returns its poses."""
+    n = len(results)
+    names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
+    bs = beside(tracker, _Masks(frames), np.array([r.q for r in results]), sweeps=SWEEPS, sources=names)
+    kept = []
+    for k, r in enumerate(results):
+        took = tuple(f"'{h}' taken from the frames beside it" for h, t in zip(bs.part_names, bs.taken[k]) if t)
+        if took:  # the pose written is no longer the track's
+            r = dataclasses.replace(r, q=bs.q[k].copy(), body_poses=robot.maximal_coordinates(bs.q[k]),
+                                    flags=(*r.flags, *took))
+        kept.append(dataclasses.replace(r, fit=float(bs.fit[k])))  # every row's fit at the same sizes
+    with replaced(out / "beside.csv") as tmp:
+        Trajectory(robot, bs.q, kept).to_csv(tmp, frames=frames.numbers[:n])
+    print(f"note: --beside: a limb's part taken from the frames beside on {int(bs.taken.any(axis=1).sum())} of {n} "
+          "frames", file=sys.stderr)
+    return bs.q
 
 
 def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, meta: dict) -> None:
@@ -475,10 +508,12 @@ def run(args: argparse.Namespace) -> int:
         from ..ecm.reacquisition import Reacquisition
 
         reacquire = Reacquisition(robot, frames.cameras, q0, reference_fit=init_fit)
-    results = _track_frames(args, out, robot, tracker, frames, reacquire)
+    results, tracker = _track_frames(args, out, robot, tracker, frames, reacquire)
     qs = np.array([r.q for r in results])
     if args.both_ways:
         qs = _track_backwards(args, out, robot, options, frames, results)
+    elif args.beside:
+        qs = _take_beside(out, robot, tracker, frames, results)
     _write_end(out, args, robot, qs, frames, meta)
     _summary(out, results, frames, tracker.options.silhouette.poor_fit, video_mode)
     return 0

@@ -26,7 +26,8 @@ whole pose's choice turns on the trunk and the legs, and leaves an arm that the 
 track held better.  Last, each part is tried on each frame from the frames beside it
 (:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
 where the masks bear it out.  It costs a second track, and uses the frames after each
-frame, so it is for a finished recording.
+frame, so it is for a finished recording.  :func:`beside` takes the frames beside on one
+track alone, without the backward pass (a few seconds, not a second track).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "BothWays", "apart", "both_ways", "choose", "hinges", "parts",
-           "take_beside", "take_parts"]
+__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "beside", "both_ways", "choose",
+           "hinges", "parts", "take_beside", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
@@ -89,6 +90,24 @@ class BothWays:
     part_names: tuple[str, ...]
     parts: np.ndarray
     beside: np.ndarray
+
+
+@dataclass(frozen=True)
+class Beside:
+    """The result of :func:`beside`.
+
+    Attributes:
+        q: (frames, nq) each frame's pose, its parts taken from the frames beside it.
+        fit: (frames,) the fit (IoU) of :attr:`q`, at the tracker's body sizes.
+        part_names: the joints tried (:func:`parts`), in tree order.
+        taken: (frames, len(part_names)) True where that joint and the joints below it
+            were taken from the frames beside.
+    """
+
+    q: np.ndarray
+    fit: np.ndarray
+    part_names: tuple[str, ...]
+    taken: np.ndarray
 
 
 def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -235,6 +254,28 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
             for other in _beside(robot, q, k):
                 q[k], fit_q[k] = tried.take(score, q[k], other, fit_q[k], taken[k])
     return q, fit_q, taken
+
+
+def beside(tracker: Tracker, masks: Sequence, q: np.ndarray, *, sweeps: int = SWEEPS,
+           sources: Sequence[str] | None = None) -> Beside:
+    """One finished track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one
+    mask per camera) with its limbs' parts taken from the frames beside
+    (:func:`take_beside`), without a backward pass: the fits at ``tracker``'s body sizes
+    (the tracker that made the track, after its last frame).  ``sources`` names each frame
+    in error messages (default ``"frame k"``)."""
+    q = np.asarray(q, dtype=float)
+    n, robot = len(masks), tracker.robot
+    if q.shape != (n, robot.nq):
+        raise ValueError(f"q must have shape ({n}, {robot.nq}) (one pose per frame), not {q.shape}")
+    names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
+    fit = np.array([tracker.fit(q[k], masks[k], source=names[k]) for k in range(n)])
+
+    def scorer(k: int) -> Callable[[np.ndarray], float]:  # each frame's masks read once for all its trials
+        m = masks[k]
+        return lambda pose: tracker.fit(pose, m, source=names[k])
+
+    q, fit, taken = take_beside(robot, scorer, q, fit, sweeps)
+    return Beside(q, fit, parts(robot), taken)
 
 
 def _beside(robot: Robot, q: np.ndarray, k: int):

@@ -10,13 +10,14 @@ import pinocchio as pin
 import pytest
 
 import kms2pin
-from kms2pin.ecm import Camera, make_motion, synthesize
+from kms2pin.ecm import Camera, Tracker, make_motion, synthesize
 from kms2pin.ecm.bothways import (
     MARGIN,
     SWEEPS,
     SWITCH,
     TOLERANCE,
     apart,
+    beside,
     both_ways,
     choose,
     hinges,
@@ -444,3 +445,37 @@ def test_a_part_from_the_frames_beside_closes_the_loop():
     q, _, taken = take_beside(robot, score, kept, [score(k)(x) for k, x in enumerate(kept)])
     assert taken[3].any() and abs(q[3, col] - truth[3, col]) < 1e-6
     assert max(robot.closure_residual(x).max() for x in q) < 1e-9
+
+
+def test_one_track_takes_a_part_from_the_frames_beside_without_a_backward_pass(walk):
+    """:func:`beside` on a forward "track" that is the truth but for a knee bent far off on
+    frame 5: the frame is mended from its neighbours, judged by the body centres against the
+    motion the masks were rendered from; the other frames move by the masks' noise at most."""
+    robot, cams, truth, masks = walk
+    track = truth.copy()
+    knee = next(j for j in robot.joints if j.kind == "revolute")
+    track[5, knee.idx_q] += 1.2
+    tracker = Tracker(robot, cams)
+    bs = beside(tracker, masks, track)
+    assert bs.q.shape == truth.shape and bs.taken.shape == (len(truth), len(parts(robot)))
+    assert bs.part_names == parts(robot) and bs.taken[5].any()
+    err_track, err = _centre_error(robot, track, truth), _centre_error(robot, bs.q, truth)
+    assert err[5] < 0.05 * err_track[5]
+    assert np.delete(err, 5).max() < 1e-3 * robot.height
+    assert np.array_equal(bs.q[~bs.taken.any(axis=1)], track[~bs.taken.any(axis=1)])
+    # each frame's fit is its pose's, at the tracker's sizes, and never below the track's
+    assert np.allclose(bs.fit, [tracker.fit(x, m) for x, m in zip(bs.q, masks)], rtol=0, atol=1e-15)
+    assert (bs.fit >= [tracker.fit(x, m) for x, m in zip(track, masks)]).all()
+    none = beside(tracker, masks, track, sweeps=0)
+    assert np.array_equal(none.q, track) and not none.taken.any()
+
+
+def test_one_track_beside_checks_its_poses_and_names_frames_in_errors(walk):
+    robot, cams, truth, masks = walk
+    tracker = Tracker(robot, cams)
+    with pytest.raises(ValueError, match=r"one pose per frame"):
+        beside(tracker, masks, truth[:-1])
+    bad = list(masks)
+    bad[3] = [m[:-1] for m in bad[3]]
+    with pytest.raises(kms2pin.Kms2pinError, match="clip.avi: frame 3"):
+        beside(tracker, bad, truth, sources=[f"clip.avi: frame {k}" for k in range(len(bad))])
