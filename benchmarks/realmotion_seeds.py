@@ -5,7 +5,7 @@ change is judged over about twenty seeds, paired.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion_seeds.py --only walk-2cam-320
         --seeds 0-19 [--jobs 2] [--option NAME=VALUE] [--variant NAME=VALUE[,NAME=VALUE...]]
-        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways]
+        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways] [--beside]
 
 Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
 over the seeds their mean, median, range and standard deviation; the median over the
@@ -15,7 +15,9 @@ silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); 
 track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
 flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways``,
 :mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track, and smoothed
-with the whole poses alone (before the limbs' parts); frames/s of
+with the whole poses alone (before the limbs' parts); with ``--beside`` the forward track's
+limbs' parts taken from the frames beside, without a backward pass (``track --beside``),
+smoothed, against the forward track smoothed; frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -38,7 +40,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import realmotion as rm  # noqa: E402
 
-from kms2pin.ecm.bothways import MARGIN, both_ways, choose  # noqa: E402
+from kms2pin.ecm.bothways import MARGIN, beside, both_ways, choose  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -51,7 +53,7 @@ def _sequence(bvh: Path, motion: str, frames: int | None) -> rm.Sequence:
 
 def track_seed(job: tuple) -> dict:
     """One case's track on one seed's masks: its figures (module docstring)."""
-    name, bvh, frames, seed, cache, options, two_ways = job
+    name, bvh, frames, seed, cache, options, two_ways, one_beside = job
     motion, n, factor, preset = rm.CASES[name]
     seq = _sequence(bvh, motion, frames)
     cameras = rm.rig(seq.path, n, factor)
@@ -77,6 +79,11 @@ def track_seed(job: tuple) -> dict:
            "floor_better": float(np.mean(fit_floor > fit)), "fps": fps,
            "smoothed": err_s.mean(), "knees2_smoothed": (flex_s[:, :2] ** 2).mean(),
            "elbows2_smoothed": (flex_s[:, 2:] ** 2).mean()}
+    if one_beside:  # --beside: the forward track's parts from the frames beside, at the sizes it ended with
+        bs = beside(tracker, masks, q)
+        err_x, flex_x = smoothed(bs.q)
+        row |= {"beside_smoothed": err_x.mean(), "elbows2_beside": (flex_x[:, 2:] ** 2).mean(),
+                "knees2_beside": (flex_x[:, :2] ** 2).mean(), "beside_only_frames": float(bs.taken.any(axis=1).mean())}
     if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
         err_b, flex_b = smoothed(bw.q)
@@ -120,7 +127,22 @@ def report(label: str, rows: list[dict]) -> str:
             f"    smoothed at {rm.SMOOTH_HZ:g} Hz (track --smooth): mean {smoothed.mean():.1f} mm, median "
             f"{np.median(smoothed):.1f}, the seeds' means {np.mean(smoothed - means):+.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2_smoothed'] for r in rows])):.1f}, elbows "
-            f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg" + _both(rows, means))
+            f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg" + _beside(rows, smoothed)
+            + _both(rows, means))
+
+
+def _beside(rows: list[dict], smoothed: np.ndarray) -> str:
+    """The ``--beside`` line of :func:`report` (empty without it)."""
+    if "beside_smoothed" not in rows[0]:
+        return ""
+    x = np.array([r["beside_smoothed"] for r in rows])
+    d = x - smoothed
+    se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.2f}" if len(d) > 1 else ""
+    return (f"\n    the frames beside (track --beside, a part taken on {np.median([r['beside_only_frames'] for r in rows]):.0%} "
+            f"of the frames, median), smoothed: mean {x.mean():.1f} mm, median {np.median(x):.1f}; against the forward "
+            f"track smoothed {d.mean():+.2f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}; flexion RMSE knees "
+            f"{np.sqrt(np.mean([r['knees2_beside'] for r in rows])):.1f}, elbows "
+            f"{np.sqrt(np.mean([r['elbows2_beside'] for r in rows])):.1f} deg")
 
 
 def _both(rows: list[dict], means: np.ndarray) -> str:
@@ -185,6 +207,9 @@ def main() -> None:
     p.add_argument("--both-ways", action="store_true",
                    help="also track each seed backwards and report the better-fitting pose of the two per frame "
                         "(track --both-ways; twice the time)")
+    p.add_argument("--beside", action="store_true",
+                   help="also take each seed's limbs' parts from the frames beside, without a backward pass "
+                        "(track --beside; a few seconds)")
     p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
@@ -200,7 +225,7 @@ def main() -> None:
     sets = {"preset": options}
     if a.variant:
         sets["variant"] = {**options, **rm.parse_options(a.variant.split(","), "--variant", p.error)}
-    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways) for name in names for opts in sets.values()
+    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside) for name in names for opts in sets.values()
             for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:
         out = pool.map(track_seed, jobs, chunksize=1)
