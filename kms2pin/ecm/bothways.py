@@ -18,12 +18,12 @@ the whole sequence (:func:`choose`): each change from one track to the other cos
 and the choice of the most fit gained less those costs is kept (a Viterbi pass over the
 two tracks).  A stretch one track lost is taken from the other where that fits better
 over the stretch, entered and left where the two agree; where they agree within
-:data:`TOLERANCE` a change costs nothing.  Then each limb's parts, from the top (a hip or a
-shoulder: a ball joint a hinge hangs from, pointed as the other track points it; a knee
-or an elbow: a hinge, at the other track's angle), are taken with the joints below them
+:data:`TOLERANCE` a change costs nothing.  Then each part, every joint but the root from
+the top down (a ball joint, a hip or a shoulder, pointed as the other track points it; a
+hinge, a knee or an elbow, at the other track's angle), is taken with the joints below it
 from the track not kept on each frame where that fits better (:func:`take_parts`): a
-whole pose's choice turns on the trunk and the legs, and leaves an arm that the other
-track held better.  Last, each part is tried on each frame from the frames beside it
+whole pose's choice turns on the trunk and the legs, and leaves an arm (or a foot, the
+chest) that the other track held better.  Last, each part is tried on each frame from the frames beside it
 (:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
 where the masks bear it out.  It costs a second track, and uses the frames after each
 frame, so it is for a finished recording.  :func:`beside` takes the frames beside on one
@@ -156,11 +156,11 @@ def hinges(robot: Robot) -> tuple[str, ...]:
 
 
 def parts(robot: Robot) -> tuple[str, ...]:
-    """The joints :func:`take_parts` tries, in tree order: the hinges (:func:`hinges`) and
-    the ball (spherical) joints a hinge hangs from (a person's hips and shoulders)."""
-    pm = robot.model
-    above = {pm.names[pm.parents[pm.getJointId(h)]] for h in hinges(robot)}
-    return tuple(j.name for j in robot.joints if j.kind == "revolute" or (j.kind == "spherical" and j.name in above))
+    """The joints :func:`take_parts` and :func:`take_beside` try, in tree order: every joint
+    but a free root (a person's hips, knees, ankles and toes, the spine and the neck, the
+    collars, shoulders, elbows and wrists; on the thesis's models every joint): a track
+    that holds a limb may still have the trunk or a foot off (docs/design/tracking-history.md)."""
+    return tuple(j.name for j in robot.joints if j.kind != "free")
 
 
 class _Parts:
@@ -173,11 +173,13 @@ class _Parts:
         self.here, self.there = pm.createData(), pm.createData()
         self.names = parts(robot)
         kinds = {j.name: j.kind for j in robot.joints}
-        self.plan = []  # per part: its joint, whether a hinge, its own q columns, those below it, its v columns
+        # per part: its joint, whether it has one coordinate (a hinge, a slider), its own q
+        # columns, those below it, its v columns
+        self.plan = []
         for name in self.names:
             jid = pm.getJointId(name)
             below = [np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid] if j != jid]
-            self.plan.append((jid, kinds[name] == "revolute", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
+            self.plan.append((jid, kinds[name] != "spherical", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
                               np.concatenate(below or [np.arange(0)]),
                               list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))))
 
@@ -190,7 +192,7 @@ class _Parts:
         for h, (jid, hinge, own, cols, held) in enumerate(self.plan):
             trial = q.copy()
             trial[cols] = other[cols]
-            if hinge:
+            if hinge:  # one coordinate: the other track's
                 trial[own] = other[own]
             else:  # a ball joint: this track's parent, the other track's world orientation
                 pin.forwardKinematics(pm, here, q)
@@ -215,7 +217,7 @@ def take_parts(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], floa
     """Each of :func:`parts` in tree order, on each frame k, taken with the joints below it
     from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
     ``fit_q``) where that fits better (``scorer(k)``, asked once a frame, scores a pose on
-    frame k: the IoU).  A hinge takes the other track's angle.  A ball joint takes the
+    frame k: the IoU).  A hinge (or a slider) takes the other track's coordinate.  A ball joint takes the
     rotation that gives the body it moves the other track's orientation in the world, from
     this track's body above it: a thigh or an upper arm then points as the other track has
     it, from this track's hip or shoulder (its angles, relative to a trunk the tracks place

@@ -479,3 +479,59 @@ def test_one_track_beside_checks_its_poses_and_names_frames_in_errors(walk):
     bad[3] = [m[:-1] for m in bad[3]]
     with pytest.raises(kms2pin.Kms2pinError, match="clip.avi: frame 3"):
         beside(tracker, bad, truth, sources=[f"clip.avi: frame {k}" for k in range(len(bad))])
+
+
+def test_the_parts_are_every_joint_but_a_free_root():
+    """On a person: the spine and the neck, which no hinge hangs from, are parts too; on a
+    gantry (sliders on the world) every joint.  Read from Pinocchio's own joint list."""
+    human = kms2pin.load(DIR / "human.kms", root="free")
+    pm = human.model
+    assert parts(human) == tuple(pm.names[j] for j in range(2, pm.njoints))  # 1 is the free root
+    assert {"torso_waist", "head_neck"} <= set(parts(human))
+    gantry = kms2pin.load(DIR / "gantry.kms")
+    assert parts(gantry) == tuple(gantry.model.names[j] for j in range(1, gantry.model.njoints))
+
+
+def test_a_ball_joint_no_hinge_hangs_from_takes_the_other_tracks_world_orientation():
+    """The head taken from a track whose torso is turned too: with a score that wants the
+    other track's head but this track's torso, the waist (tried first, carrying the torso) is
+    not taken, the neck is, and the head then looks as the other track's does."""
+    robot = kms2pin.load(DIR / "human.kms", root="free")
+    cols = {j.name: slice(j.idx_q, j.idx_q + j.nq) for j in robot.joints}
+    kept, other = robot.q_rest.copy(), robot.q_rest.copy()
+    other[cols["torso_waist"]] = pin.Quaternion(pin.exp3(np.array([0.0, 0.6, 0.2]))).coeffs()
+    other[cols["head_neck"]] = pin.Quaternion(pin.exp3(np.array([0.3, -0.2, 0.1]))).coeffs()
+    torso, head = robot.bodies.index("torso"), robot.bodies.index("head")
+    want_head, want_torso = robot.body_poses(other)[head].rotation, robot.body_poses(kept)[torso].rotation
+
+    def fit(k, q):  # independent: the head's world orientation against the other's, the torso against this track's
+        poses = robot.body_poses(q)
+        return -float(np.linalg.norm(pin.log3(poses[head].rotation.T @ want_head))
+                      + np.linalg.norm(pin.log3(poses[torso].rotation.T @ want_torso)))
+
+    q, fit_q, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept[None], other[None],
+                                 np.array([fit(0, kept)]))
+    names = list(parts(robot))
+    assert taken[0, names.index("head_neck")] and not taken[0, names.index("torso_waist")]
+    assert np.allclose(robot.body_poses(q[0])[head].rotation, want_head, atol=1e-9)
+    neck = cols["head_neck"]
+    assert np.array_equal(np.delete(q[0], np.r_[neck]), np.delete(kept, np.r_[neck]))
+    assert fit_q[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_slider_is_taken_at_the_other_tracks_coordinate():
+    """A gantry's quill (a prismatic joint, one coordinate) taken as a hinge is: the other
+    track's offset, with the wrist below it; the bridge and carriage above stay."""
+    robot = kms2pin.load(DIR / "gantry.kms")
+    kept = robot.q_rest.copy()
+    other = kept + np.array([0.05, -0.04, 0.03, 0.4])
+    quill = robot.model.idx_qs[robot.model.getJointId("quill_top")]
+
+    def fit(k, q):  # prefers the other track's quill and wrist, this track's bridge and carriage far more
+        return -float(np.abs(q[quill:] - other[quill:]).sum() + 100 * np.abs(q[:quill] - kept[:quill]).sum())
+
+    q, _, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept[None], other[None],
+                             np.array([fit(0, kept)]))
+    names = list(parts(robot))
+    assert taken[0, names.index("quill_top")] and not taken[0, :names.index("quill_top")].any()
+    assert np.array_equal(q[0, quill:], other[quill:]) and np.array_equal(q[0, :quill], kept[:quill])
