@@ -13,8 +13,8 @@ is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; 
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
-track where they agree, and each frame's better-fitting hips, knees, shoulders and elbows of the two,
-then of the frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv
+track where they agree, and each frame's better-fitting parts of the two (every joint with the joints
+below it: hips, knees, spine, collars, shoulders, elbows, ...), then of the frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv
 takes the frames beside on the forward track, without the backward pass;
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
@@ -82,11 +82,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--both-ways", action="store_true",
                    help="also track the frames backwards from the last pose and write both_ways.csv, the "
                         "better-fitting stretches of the two tracks, changing track where they agree, then on each frame "
-                        "the better-fitting limbs' parts of the two: the hinges and the ball joints above them, a person's "
-                        "hips, knees, shoulders and elbows, then of the frames beside it (twice the time; "
+                        "the better-fitting parts of the two (every joint but the root with the joints below it: a "
+                        "person's hips, knees, spine, shoulders, elbows, ...), then of the frames beside it (twice the time; "
                         "motion.bvh, animation.html and --smooth then use it)")
     p.add_argument("--beside", action="store_true",
-                   help="also write beside.csv, the track with each limb's parts (as --both-ways takes them) taken on "
+                   help="also write beside.csv, the track with each part (as --both-ways takes them) taken on "
                         "each frame from the frames beside it where that fits better, without the backward pass (a few "
                         "seconds; motion.bvh, animation.html and --smooth then use it; --both-ways does this itself)")
     p.add_argument("--smooth", type=positive, metavar="HZ",

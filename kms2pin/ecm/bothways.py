@@ -261,7 +261,7 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
 def beside(tracker: Tracker, masks: Sequence, q: np.ndarray, *, sweeps: int = SWEEPS,
            sources: Sequence[str] | None = None) -> Beside:
     """One finished track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one
-    mask per camera) with its limbs' parts taken from the frames beside
+    mask per camera) with its parts (:func:`parts`) taken from the frames beside
     (:func:`take_beside`), without a backward pass: the fits at ``tracker``'s body sizes
     (the tracker that made the track, after its last frame).  ``sources`` names each frame
     in error messages (default ``"frame k"``)."""
@@ -298,7 +298,7 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
     ``options`` / ``overrides`` (those of the forward track), and keep per frame the
-    better-fitting poses, then the better-fitting limbs' parts, from the other track and then
+    better-fitting poses, then the better-fitting parts (:func:`parts`), from the other track and then
     from the frames beside (module docstring; ``margin``, ``switch`` and ``tolerance`` as in
     :func:`choose`; :func:`take_parts`; ``sweeps`` as in :func:`take_beside`, 0: none).
     ``sources`` names each frame in error messages (default ``"frame k"``); ``progress``
