@@ -45,8 +45,8 @@ from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "beside", "both_ways", "choose",
-           "hinges", "parts", "take_beside", "take_parts"]
+__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "beside", "both_ways", "branching",
+           "choose", "hinges", "parts", "take_beside", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
@@ -163,13 +163,25 @@ def parts(robot: Robot) -> tuple[str, ...]:
     return tuple(j.name for j in robot.joints if j.kind != "free")
 
 
+def branching(robot: Robot) -> tuple[str, ...]:
+    """The parts (:func:`parts`) with a branch below them: a joint two or more joints hang
+    from, or above one (a person's lower back and chest, which carry both arms and the
+    head).  :func:`take_parts` does not take them from the other track: that would be the
+    whole upper body's track changed on a frame, without the cost a change of track pays
+    (:func:`choose`; docs/design/tracking-history.md)."""
+    pm = robot.model
+    return tuple(n for n in parts(robot) if any(len(pm.children[j]) >= 2 for j in pm.subtrees[pm.getJointId(n)]))
+
+
 class _Parts:
     """What :func:`take_parts` and :func:`take_beside` try on a frame: each of :func:`parts`
     with its joint, columns and held velocities, worked out once."""
 
-    def __init__(self, robot: Robot):
+    def __init__(self, robot: Robot, branches: bool = True):
         pm = self.pm = robot.model
         self.robot = robot
+        # without ``branches`` a part with a branch below it (:func:`branching`) is not tried
+        skipped = set() if branches else set(branching(robot))
         self.here, self.there = pm.createData(), pm.createData()
         self.names = parts(robot)
         kinds = {j.name: j.kind for j in robot.joints}
@@ -177,6 +189,9 @@ class _Parts:
         # columns, those below it, its v columns
         self.plan = []
         for name in self.names:
+            if name in skipped:
+                self.plan.append(None)
+                continue
             jid = pm.getJointId(name)
             below = [np.arange(pm.idx_qs[j], pm.idx_qs[j] + pm.nqs[j]) for j in pm.subtrees[jid] if j != jid]
             self.plan.append((jid, kinds[name] != "spherical", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
@@ -189,7 +204,10 @@ class _Parts:
         where ``score`` is higher, each on the last; ``taken`` (parts,) set where taken."""
         pm, here, there = self.pm, self.here, self.there
         pin.forwardKinematics(pm, there, other)
-        for h, (jid, hinge, own, cols, held) in enumerate(self.plan):
+        for h, step in enumerate(self.plan):
+            if step is None:
+                continue
+            jid, hinge, own, cols, held = step
             trial = q.copy()
             trial[cols] = other[cols]
             if hinge:  # one coordinate: the other track's
@@ -214,17 +232,17 @@ class _Parts:
 
 def take_parts(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], float]], q: np.ndarray,
                other: np.ndarray, fit_q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each of :func:`parts` in tree order, on each frame k, taken with the joints below it
-    from ``other[k]`` (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit
-    ``fit_q``) where that fits better (``scorer(k)``, asked once a frame, scores a pose on
-    frame k: the IoU).  A hinge (or a slider) takes the other track's coordinate.  A ball joint takes the
-    rotation that gives the body it moves the other track's orientation in the world, from
+    """Each of :func:`parts` in tree order but those with a branch below them
+    (:func:`branching`), on each frame k, taken with the joints below it from ``other[k]``
+    (frames, nq; the other track) into ``q[k]`` (frames, nq; its fit ``fit_q``) where that
+    fits better (``scorer(k)``, asked once a frame, scores a pose on frame k: the IoU).  A
+    hinge (or a slider) takes the other track's coordinate.  A ball joint takes the rotation that gives the body it moves the other track's orientation in the world, from
     this track's body above it: a thigh or an upper arm then points as the other track has
     it, from this track's hip or shoulder (its angles, relative to a trunk the tracks place
     differently, would point it elsewhere).  On a model with loops each trial is closed
     first with the joint held (:meth:`Robot.project`) and skipped if it cannot be.  Returns
     (q, its fit, (frames, parts) True where taken)."""
-    tried = _Parts(robot)
+    tried = _Parts(robot, branches=False)
     q, fit_q = np.array(q, dtype=float), np.array(fit_q, dtype=float)
     taken = np.zeros((len(q), len(tried.names)), dtype=bool)
     for k in range(len(q)):  # the frames are independent

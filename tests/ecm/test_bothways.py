@@ -19,6 +19,7 @@ from kms2pin.ecm.bothways import (
     apart,
     beside,
     both_ways,
+    branching,
     choose,
     hinges,
     parts,
@@ -535,3 +536,26 @@ def test_a_slider_is_taken_at_the_other_tracks_coordinate():
     names = list(parts(robot))
     assert taken[0, names.index("quill_top")] and not taken[0, :names.index("quill_top")].any()
     assert np.array_equal(q[0, quill:], other[quill:]) and np.array_equal(q[0, :quill], kept[:quill])
+
+
+def test_a_part_that_carries_a_branch_is_taken_from_the_frames_beside_not_from_the_other_track():
+    """The waist carries both arms and the head (two or more joints hang from the torso):
+    taken from the other track it would change the whole upper body's track on one frame,
+    so take_parts leaves it even where the score prefers it; take_beside, from the same
+    track's neighbouring frames, takes it."""
+    robot = kms2pin.load(DIR / "human.kms", root="free")
+    assert branching(robot) == ("torso_waist",)
+    assert branching(kms2pin.load(DIR / "lowerbody.kms", root="free")) == ()  # the legs hang from the free root
+    cols = {j.name: slice(j.idx_q, j.idx_q + j.nq) for j in robot.joints}
+    kept, other = robot.q_rest.copy(), robot.q_rest.copy()
+    other[cols["torso_waist"]] = pin.Quaternion(pin.exp3(np.array([0.0, 0.5, 0.2]))).coeffs()
+
+    def fit(k, q):  # independent: the torso's world orientation against the other track's
+        return -float(np.linalg.norm(pin.log3(robot.body_poses(q)[1].rotation.T @ robot.body_poses(other)[1].rotation)))
+
+    q, _, taken = take_parts(robot, lambda k: lambda x: fit(k, x), kept[None], other[None], np.array([fit(0, kept)]))
+    assert not taken.any() and np.array_equal(q[0], kept)
+    track = np.array([other, kept, other])  # the middle frame's torso off, its neighbours right
+    q, _, taken = take_beside(robot, lambda k: lambda x: fit(k, x), track, np.array([fit(k, x) for k, x in enumerate(track)]))
+    assert taken[1, list(parts(robot)).index("torso_waist")]
+    assert fit(1, q[1]) == pytest.approx(0.0, abs=1e-9)
