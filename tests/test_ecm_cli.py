@@ -564,6 +564,17 @@ def test_evaluate_smoothed_without_a_smoothed_track_says_how_to_make_one(tracked
     assert "no smoothed.csv (written by kms2pin track --smooth HZ)" in capsys.readouterr().err
 
 
+def _smoothed_and_scored(robot, out, masks, kept, flag: str, capsys) -> None:
+    """smoothed.csv is ``kept`` (the track ``flag`` wrote) smoothed at 6 Hz, and
+    ``evaluate flag`` scores that track's 10 frames."""
+    from kms2pin.ecm import Trajectory
+
+    smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
+    assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
+    assert main(["evaluate", str(out), str(masks / "truth.csv"), flag, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 10
+
+
 def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, capsys):
     """``--both-ways``: both_ways.csv (every frame, numbered as trajectory.csv, each row the
     forward or the backward track's pose, the latter flagged, a limb's part taken from the
@@ -593,10 +604,7 @@ def test_both_ways_writes_the_kept_poses_and_smooth_uses_them(tmp_path, cams2, c
     for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
         assert ("kept from the backward track" in row) or ("' taken from the backward track" in row) \
             or ("' taken from the frames beside it" in row) or np.allclose(a, b, atol=1e-8)
-    smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
-    assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
-    assert main(["evaluate", str(out), str(masks / "truth.csv"), "--both-ways", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["frames"] == 10
+    _smoothed_and_scored(robot, out, masks, kept, "--both-ways", capsys)
 
 
 def test_beside_writes_the_track_with_parts_from_the_frames_beside_and_smooth_uses_it(tmp_path, cams2, capsys):
@@ -623,10 +631,7 @@ def test_beside_writes_the_track_with_parts_from_the_frames_beside_and_smooth_us
     assert int(took[1]) == sum("' taken from the frames beside it" in r for r in rows)
     for row, a, b in zip(rows, raw, kept):  # a frame not flagged is the forward track's pose
         assert ("' taken from the frames beside it" in row) or np.allclose(a, b, atol=1e-8)
-    smoothed = Trajectory.from_csv(robot, out / "smoothed.csv").q
-    assert np.allclose(smoothed, Trajectory(robot, kept).smoothed(30.0, 6.0).q, atol=1e-6)
-    assert main(["evaluate", str(out), str(masks / "truth.csv"), "--beside", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["frames"] == 10
+    _smoothed_and_scored(robot, out, masks, kept, "--beside", capsys)
 
 
 def test_beside_with_both_ways_notes_that_both_ways_takes_the_frames_beside(tmp_path, cams2, capsys):
