@@ -27,7 +27,7 @@ chest) that the other track held better.  Last, each part is tried on each frame
 (:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
 where the masks bear it out.  It costs a second track, and uses the frames after each
 frame, so it is for a finished recording.  :func:`beside` takes the frames beside on one
-track alone, without the backward pass (a few seconds, not a second track).
+track alone, without the backward pass (tens of seconds for a few hundred frames, not a second track).
 """
 
 from __future__ import annotations
