@@ -15,8 +15,8 @@ silhouette fit (IoU) of the track and of the floor poses (``realmotion.fits``); 
 track smoothed (``realmotion.SMOOTH_HZ``, as ``track --smooth``): its mean error and
 flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways``,
 :mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track, and smoothed
-with the whole poses alone (before the limbs' parts); with ``--beside`` the forward track's
-limbs' parts taken from the frames beside, without a backward pass (``track --beside``),
+with the whole poses alone (before the parts); with ``--beside`` the forward track's
+parts taken from the frames beside, without a backward pass (``track --beside``),
 smoothed, against the forward track smoothed; frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
@@ -208,8 +208,8 @@ def main() -> None:
                    help="also track each seed backwards and report the better-fitting pose of the two per frame "
                         "(track --both-ways; twice the time)")
     p.add_argument("--beside", action="store_true",
-                   help="also take each seed's limbs' parts from the frames beside, without a backward pass "
-                        "(track --beside; a few seconds)")
+                   help="also take each seed's parts from the frames beside, without a backward pass "
+                        "(track --beside; tens of seconds)")
     p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()

@@ -13,9 +13,10 @@ is available), motion.bvh (the trajectory on the model's skeleton, docs/bvh.md; 
 the model cannot be written as BVH), model.kms, meta.json and cameras.json (for
 `kms2pin evaluate`).  With --both-ways the frames are also tracked backwards from the
 last pose and both_ways.csv keeps the better-fitting stretches of the two tracks, changing
-track where they agree, and each frame's better-fitting parts of the two (every joint with the joints
-below it: hips, knees, spine, collars, shoulders, elbows, ...), then of the frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv
-takes the frames beside on the forward track, without the backward pass;
+track where they agree, and each frame's better-fitting parts of the two (every joint with
+the joints below it: hips, knees, spine, collars, shoulders, elbows, ...), then of the
+frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv takes the frames
+beside on the forward track, without the backward pass;
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -366,6 +367,19 @@ class _Masks(Sequence):
         return self.frames.load(k)
 
 
+def _frame_names(frames: _Frames, n: int) -> list[str]:
+    """The first ``n`` frames' names in messages: the masks' files and the frame number."""
+    return [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
+
+
+def _row(robot: Robot, r, q: np.ndarray, fit: float, took: list[str]):
+    """A tracked frame's :class:`FrameResult` ``r`` as an offline pass left it: its fit
+    ``fit`` and, where it ``took`` parts (their flags), the pose ``q``, no longer the track's."""
+    if took:
+        r = dataclasses.replace(r, q=q.copy(), body_poses=robot.maximal_coordinates(q), flags=(*r.flags, *took))
+    return dataclasses.replace(r, fit=fit)
+
+
 def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, results: list) -> np.ndarray:
     """``--both-ways``: the frames tracked backwards from the last pose, both_ways.csv
     written (:mod:`kms2pin.ecm.bothways`); returns the kept poses."""
@@ -376,7 +390,7 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
         def progress(it):
             return tqdm(it, unit="frame", desc="backwards")
     n = len(results)
-    names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
+    names = _frame_names(frames, n)
     bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, margin=MARGIN,
                    switch=SWITCH, tolerance=TOLERANCE, sweeps=SWEEPS, sources=names, progress=progress)
     kept = []
@@ -385,10 +399,7 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
         side = "forward" if back else "backward"
         took = [f"'{h}' taken from the {side} track" for h, t in zip(bw.part_names, bw.parts[k]) if t]
         took += [f"'{h}' taken from the frames beside it" for h, t in zip(bw.part_names, bw.beside[k]) if t]
-        if took:  # the pose written is no longer either track's
-            r = dataclasses.replace(r, q=bw.q[k].copy(), body_poses=robot.maximal_coordinates(bw.q[k]),
-                                    flags=(*r.flags, *took))
-        kept.append(dataclasses.replace(r, fit=float(bw.fit[k])))  # every row's fit at the backward pass's sizes
+        kept.append(_row(robot, r, bw.q[k], float(bw.fit[k]), took))  # every fit at the backward pass's sizes
     with replaced(out / "both_ways.csv") as tmp:
         Trajectory(robot, bw.q, kept).to_csv(tmp, frames=frames.numbers[:n])
     print(f"note: --both-ways: the backward track's pose kept on {int(bw.backward.sum())} of {n} frames, "
@@ -398,19 +409,16 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
 
 
 def _take_beside(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list) -> np.ndarray:
-    """``--beside`` (without ``--both-ways``): beside.csv, the forward track with each
-    limb's parts taken from the frames beside (:func:`kms2pin.ecm.bothways.beside`, the
+    """``--beside`` (without ``--both-ways``): beside.csv, the forward track with its
+    parts taken from the frames beside (:func:`kms2pin.ecm.bothways.beside`, the
     fits at the last frame's body sizes); returns its poses."""
     n = len(results)
-    names = [f"{frames.names[k]}: frame {frames.numbers[k]}" for k in range(n)]
+    names = _frame_names(frames, n)
     bs = beside(tracker, _Masks(frames), np.array([r.q for r in results]), sweeps=SWEEPS, sources=names)
     kept = []
     for k, r in enumerate(results):
-        took = tuple(f"'{h}' taken from the frames beside it" for h, t in zip(bs.part_names, bs.taken[k]) if t)
-        if took:  # the pose written is no longer the track's
-            r = dataclasses.replace(r, q=bs.q[k].copy(), body_poses=robot.maximal_coordinates(bs.q[k]),
-                                    flags=(*r.flags, *took))
-        kept.append(dataclasses.replace(r, fit=float(bs.fit[k])))  # every row's fit at the same sizes
+        took = [f"'{h}' taken from the frames beside it" for h, t in zip(bs.part_names, bs.taken[k]) if t]
+        kept.append(_row(robot, r, bs.q[k], float(bs.fit[k]), took))  # every fit at the last frame's sizes
     with replaced(out / "beside.csv") as tmp:
         Trajectory(robot, bs.q, kept).to_csv(tmp, frames=frames.numbers[:n])
     print(f"note: --beside: a limb's part taken from the frames beside on {int(bs.taken.any(axis=1).sum())} of {n} "

@@ -21,13 +21,14 @@ over the stretch, entered and left where the two agree; where they agree within
 :data:`TOLERANCE` a change costs nothing.  Then each part, every joint but the root from
 the top down (a ball joint, a hip or a shoulder, pointed as the other track points it; a
 hinge, a knee or an elbow, at the other track's angle), is taken with the joints below it
-from the track not kept on each frame where that fits better (:func:`take_parts`): a
-whole pose's choice turns on the trunk and the legs, and leaves an arm (or a foot, the
-chest) that the other track held better.  Last, each part is tried on each frame from the frames beside it
-(:func:`take_beside`): a limb held on a few frames spreads to the frames on either side
-where the masks bear it out.  It costs a second track, and uses the frames after each
-frame, so it is for a finished recording.  :func:`beside` takes the frames beside on one
-track alone, without the backward pass (tens of seconds for a few hundred frames, not a second track).
+from the track not kept on each frame where that fits better (:func:`take_parts`; not a
+part with a branch below it, :func:`branching`): a whole pose's choice turns on the trunk
+and the legs, and leaves an arm (or a foot) that the other track held better.  Last, each
+part is tried on each frame from the frames beside it (:func:`take_beside`): a limb held
+on a few frames spreads to the frames on either side where the masks bear it out.  It
+costs a second track, and uses the frames after each frame, so it is for a finished
+recording.  :func:`beside` takes the frames beside on one track alone, without the
+backward pass (tens of seconds for a few hundred frames, not a second track).
 """
 
 from __future__ import annotations
@@ -276,6 +277,16 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
     return q, fit_q, taken
 
 
+def _scorer(tracker: Tracker, masks: Sequence, names: Sequence[str]) -> Callable[[int], Callable[[np.ndarray], float]]:
+    """The scorer :func:`take_parts` and :func:`take_beside` ask once a frame: the fit at
+    ``tracker``'s sizes on frame k's masks, read once for all its trials."""
+    def scorer(k: int) -> Callable[[np.ndarray], float]:
+        m = masks[k]
+        return lambda pose: tracker.fit(pose, m, source=names[k])
+
+    return scorer
+
+
 def beside(tracker: Tracker, masks: Sequence, q: np.ndarray, *, sweeps: int = SWEEPS,
            sources: Sequence[str] | None = None) -> Beside:
     """One finished track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one
@@ -290,11 +301,7 @@ def beside(tracker: Tracker, masks: Sequence, q: np.ndarray, *, sweeps: int = SW
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
     fit = np.array([tracker.fit(q[k], masks[k], source=names[k]) for k in range(n)])
 
-    def scorer(k: int) -> Callable[[np.ndarray], float]:  # each frame's masks read once for all its trials
-        m = masks[k]
-        return lambda pose: tracker.fit(pose, m, source=names[k])
-
-    q, fit, taken = take_beside(robot, scorer, q, fit, sweeps)
+    q, fit, taken = take_beside(robot, _scorer(tracker, masks, names), q, fit, sweeps)
     return Beside(q, fit, parts(robot), taken)
 
 
@@ -342,10 +349,7 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     q = np.where(back[:, None], backward_q, forward_q)
     other = np.where(back[:, None], forward_q, backward_q)
 
-    def scorer(k: int) -> Callable[[np.ndarray], float]:  # each frame's masks read once for all its trials
-        m = masks[k]
-        return lambda pose: tracker.fit(pose, m, source=names[k])
-
+    scorer = _scorer(tracker, masks, names)
     q, fit_q, taken = take_parts(robot, scorer, q, other, np.where(back, fit_b, fit_f))
     q, fit_q, beside = take_beside(robot, scorer, q, fit_q, sweeps)
     return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken, beside)
