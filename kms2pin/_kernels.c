@@ -1056,6 +1056,32 @@ static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_
     }
 }
 
+/* Body i of A, e, box counted into img as paint_body paints it (each of its pixels + 1);
+ * returns -1 if a count would pass 255 (img then partly counted). */
+static int count_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
+                      Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
+{
+    Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
+    Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
+    if (bu1 <= bu0 || bv1 <= bv0) return 0;
+    double A[9], e[3], Ae[3];
+    for (int j = 0; j < 9; j++) A[j] = AT(b[1], i, j);
+    for (int j = 0; j < 3; j++) e[j] = AT(b[2], i, j);
+    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
+    const Quadric kq = quadric(A, e, Ae);
+    int full = 0;
+    for (Py_ssize_t v = bv0; v < bv1; v++) {
+        const double *D = rays + 3 * (v * W + bu0);
+        unsigned char *o = img + (v - v0) * stride + (bu0 - u0);
+        for (Py_ssize_t c = 0; c < bu1 - bu0; c++) {
+            unsigned char in = ray_closest(kq, D[3 * c], D[3 * c + 1], D[3 * c + 2]).a2 <= 1.0;
+            full |= in & (o[c] == 255);
+            o[c] += in;
+        }
+    }
+    return full ? -1 : 0;
+}
+
 /* The rays, A, e and box arguments (b[0..3]); 0 or -1 with an exception set. */
 static int union_args(PyObject *const *args, Buf *b)
 {
@@ -1165,6 +1191,109 @@ static PyObject *silhouette_counts(PyObject *self, PyObject *const *args, Py_ssi
     PyMem_Free(scratch);
     release(b, 8);
     Py_RETURN_NONE;
+}
+
+/* silhouette_add(rays (H,W,3), A (n,9), e (n,3), box (n,4), counts (H,W) uint8)
+ * counts + 1 on each pixel of each body's silhouette (as silhouette_union paints it);
+ * ValueError if a count would pass 255. */
+static PyObject *silhouette_add(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_add(rays, A, e, box, counts)");
+        return NULL;
+    }
+    Buf b[5];
+    memset(b, 0, sizeof(b));
+    if (union_args(args, b) < 0 || union_image(args[4], &b[4], 1, "counts", b[0].view.shape[0], b[0].view.shape[1]) < 0) {
+        release(b, 5);
+        return NULL;
+    }
+    Py_ssize_t W = b[0].view.shape[1];
+    int full = 0;
+    for (Py_ssize_t i = 0; i < b[1].view.shape[0]; i++)
+        full |= count_body(b, i, (const double *)b[0].view.buf, W, (unsigned char *)b[4].view.buf,
+                           b[4].view.strides[0], 0, 0);
+    release(b, 5);
+    if (full) {
+        PyErr_SetString(PyExc_ValueError, "silhouette_add: more than 255 bodies on a pixel");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* silhouette_swap(rays, A_old, e_old, box_old, A_new, e_new, box_new, counts (H,W), mask (H,W))
+ *   -> (d_inter, d_union)
+ * counts (uint8) holds how many bodies' silhouettes cover each pixel (silhouette_add), the
+ * "old" bodies among them: the change in the union's intersection with mask and in its
+ * union with mask when the old bodies are taken out and the new ones painted in
+ * (silhouette_union's pixels), over the bounding box of both's boxes. */
+static PyObject *silhouette_swap(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "silhouette_swap(rays, A_old, e_old, box_old, A_new, e_new, box_new, counts, mask)");
+        return NULL;
+    }
+    Buf b[6], nb[4];
+    memset(b, 0, sizeof(b));
+    memset(nb, 0, sizeof(nb));
+    PyObject *const na[4] = {args[0], args[4], args[5], args[6]};
+    int ok = union_args(args, b) == 0 && union_args(na, nb) == 0;
+    Py_ssize_t H = ok ? b[0].view.shape[0] : 0, W = ok ? b[0].view.shape[1] : 0;
+    ok = ok && union_image(args[7], &b[4], 0, "counts", H, W) == 0 && union_image(args[8], &b[5], 0, "mask", H, W) == 0;
+    if (!ok) {
+        release(b, 6);
+        release(nb, 4);
+        return NULL;
+    }
+    Py_ssize_t v0 = H, u0 = W, v1 = 0, u1 = 0;
+    const Buf *boxes[2] = {&b[3], &nb[3]};
+    for (int g = 0; g < 2; g++) /* the bounding box of both groups' boxes */
+        for (Py_ssize_t i = 0; i < boxes[g]->view.shape[0]; i++) {
+            Py_ssize_t bu0 = (Py_ssize_t)AT(*boxes[g], i, 0), bv0 = (Py_ssize_t)AT(*boxes[g], i, 1);
+            Py_ssize_t bu1 = (Py_ssize_t)AT(*boxes[g], i, 2), bv1 = (Py_ssize_t)AT(*boxes[g], i, 3);
+            if (bu1 <= bu0 || bv1 <= bv0) continue;
+            v0 = bv0 < v0 ? bv0 : v0;
+            u0 = bu0 < u0 ? bu0 : u0;
+            v1 = bv1 > v1 ? bv1 : v1;
+            u1 = bu1 > u1 ? bu1 : u1;
+        }
+    Py_ssize_t d_inter = 0, d_union = 0, w = u1 - u0, h = v1 - v0;
+    if (h > 0 && w > 0) {
+        unsigned char *old = (unsigned char *)PyMem_Calloc((size_t)(2 * h * w), 1);
+        if (old == NULL) {
+            release(b, 6);
+            release(nb, 4);
+            return PyErr_NoMemory();
+        }
+        unsigned char *neu = old + h * w;
+        const double *rays = (const double *)b[0].view.buf;
+        int full = 0;
+        for (Py_ssize_t i = 0; i < b[1].view.shape[0]; i++) full |= count_body(b, i, rays, W, old, w, v0, u0);
+        for (Py_ssize_t i = 0; i < nb[1].view.shape[0]; i++) paint_body(nb, i, rays, W, neu, w, v0, u0);
+        for (Py_ssize_t v = v0; v < v1 && !full; v++) {
+            const unsigned char *c = (const unsigned char *)b[4].view.buf + v * b[4].view.strides[0] + u0;
+            const unsigned char *m = (const unsigned char *)b[5].view.buf + v * b[5].view.strides[0] + u0;
+            const unsigned char *o = old + (v - v0) * w, *n = neu + (v - v0) * w;
+            for (Py_ssize_t k = 0; k < w; k++) {
+                full |= o[k] > c[k];
+                int base = c[k] != 0, trial = (c[k] > o[k]) | (n[k] != 0), in = m[k] != 0;
+                d_inter += (trial & in) - (base & in);
+                d_union += (trial | in) - (base | in);
+            }
+        }
+        PyMem_Free(old);
+        if (full) {
+            release(b, 6);
+            release(nb, 4);
+            PyErr_SetString(PyExc_ValueError, "silhouette_swap: the old bodies are not all in counts");
+            return NULL;
+        }
+    }
+    release(b, 6);
+    release(nb, 4);
+    return Py_BuildValue("(nn)", d_inter, d_union);
 }
 
 typedef struct {
@@ -2683,6 +2812,10 @@ static PyMethodDef methods[] = {
      "ellipsoid_a2(dirs, A, e, out): closest approach a^2 of every ray to the ellipsoid"},
     {"silhouette_union", (PyCFunction)(void (*)(void))silhouette_union, METH_FASTCALL,
      "silhouette_union(rays, A, e, box, out): the bodies' inner silhouettes ORed into out"},
+    {"silhouette_add", (PyCFunction)(void (*)(void))silhouette_add, METH_FASTCALL,
+     "silhouette_add(rays, A, e, box, counts): each body's silhouette counted into counts"},
+    {"silhouette_swap", (PyCFunction)(void (*)(void))silhouette_swap, METH_FASTCALL,
+     "silhouette_swap(rays, A_old, e_old, box_old, A_new, e_new, box_new, counts, mask): the fit's counts' change"},
     {"silhouette_counts", (PyCFunction)(void (*)(void))silhouette_counts, METH_FASTCALL,
      "silhouette_counts(rays, A, e, box, offset, on, off, counts): groups' silhouettes counted on and off"},
     {"silhouette_fit", (PyCFunction)(void (*)(void))silhouette_fit, METH_FASTCALL,

@@ -183,6 +183,26 @@ def _silhouette_counts(rng, mask="bool"):
     return [_rays(H, W, 0.3), A, e, boxes, offset, on, off, np.full((4, 2), -1.0)], (7,)
 
 
+def _silhouette_add(rng):
+    H, W = 60, 80
+    A, e, boxes = _silhouette_bodies(rng, 5, H, W)
+    counts = rng.integers(0, 3, (H, W)).astype(np.uint8)  # counts already there are added to
+    return [_rays(H, W, 0.3), A, e, boxes, counts], (4,)
+
+
+def _silhouette_swap(rng, mask="bool"):
+    """Five bodies counted, two of them (one out of view) moved to new places."""
+    H, W = 60, 80
+    rays = _rays(H, W, 0.3)
+    A, e, boxes = _silhouette_bodies(rng, 5, H, W)
+    counts = np.zeros((H, W), np.uint8)
+    native.implementations("silhouette_add")["numpy"](rays, A, e, boxes, counts)
+    A_new, e_new, boxes_new = _silhouette_bodies(rng, 2, H, W)
+    m = rng.random((H, W)) < 0.5
+    m = m.astype(np.uint8) if mask == "uint8" else m
+    return [rays, A[[1, 2]], e[[1, 2]], boxes[[1, 2]], A_new, e_new, boxes_new, counts, m], ()
+
+
 def _fit_body(rng, max_step=-1.0, weighted=False):
     """Two cameras (at the origin looking along +z, at (8, 0, 8) along -x) see the body
     moved a little from where the fit starts."""
@@ -462,6 +482,9 @@ CASES: dict[str, Callable] = {
     "pose_energy": _pose_energy,
     "body_boxes": _body_boxes,
     "silhouette_union": _silhouette_union,
+    "silhouette_add": _silhouette_add,
+    "silhouette_swap": _silhouette_swap,
+    "silhouette_swap-uint8": lambda rng: _silhouette_swap(rng, "uint8"),
     "silhouette_counts": _silhouette_counts,
     "silhouette_counts-uint8": lambda rng: _silhouette_counts(rng, "uint8"),
     "solve_shifted": _solve_shifted,
@@ -615,6 +638,45 @@ def test_silhouette_counts_are_those_of_each_group_s_union(backend):
         img = np.zeros(on.shape, dtype=bool)
         native.implementations("silhouette_union")["numpy"](rays, A[sl], e[sl], boxes[sl], img)
         assert counts[k].tolist() == [(img & on).sum(), (img & off).sum()]
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_a_swap_changes_the_counts_as_the_silhouettes_painted_anew(backend):
+    """silhouette_swap's change of (intersection, union) with the mask is that of the union
+    of the bodies kept and the new ones, painted by silhouette_union, against the union of
+    all the old; silhouette_add counts each body's pixels once."""
+    if backend == "c":
+        require_kernels()
+    for seed in range(4):
+        rays, A_old, e_old, b_old, A_new, e_new, b_new, counts, mask = _silhouette_swap(np.random.default_rng(seed))[0]
+        A, e, boxes = _silhouette_bodies(np.random.default_rng(seed), 5, 60, 80)  # the five counted bodies
+        np.testing.assert_array_equal(A[[1, 2]], A_old)
+        paint = native.implementations("silhouette_union")["numpy"]
+        every, kept = np.zeros((60, 80), bool), np.zeros((60, 80), bool)
+        paint(rays, A, e, boxes, every)
+        paint(rays, A[[0, 3, 4]], e[[0, 3, 4]], boxes[[0, 3, 4]], kept)
+        paint(rays, A_new, e_new, b_new, kept)
+        once = np.zeros((60, 80), np.uint8)
+        native.implementations("silhouette_add")[backend](rays, A, e, boxes, once)
+        np.testing.assert_array_equal(once, counts)
+        d = native.implementations("silhouette_swap")[backend](rays, A_old, e_old, b_old, A_new, e_new, b_new, counts,
+                                                                mask)
+        expected = (int((kept & mask).sum() - (every & mask).sum()), int((kept | mask).sum() - (every | mask).sum()))
+        assert d == expected and d != (0, 0)
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_the_count_kernels_refuse_counts_they_cannot_hold(backend):
+    """A count past 255 is refused, and so is a swap of bodies the counts do not hold."""
+    if backend == "c":
+        require_kernels()
+    rays, A, e, boxes, _ = _silhouette_add(np.random.default_rng(1))[0]
+    add = native.implementations("silhouette_add")[backend]
+    with pytest.raises(ValueError, match="255"):
+        add(rays, A, e, boxes, np.full((60, 80), 255, np.uint8))
+    swap = native.implementations("silhouette_swap")[backend]
+    with pytest.raises(ValueError, match="not all in counts"):
+        swap(rays, A, e, boxes, A[:1], e[:1], boxes[:1], np.zeros((60, 80), np.uint8), np.ones((60, 80), bool))
 
 
 def test_the_silhouette_kernels_refuse_boxes_off_the_image():

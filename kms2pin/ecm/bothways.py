@@ -202,8 +202,13 @@ class _Parts:
     def take(self, score: Callable[[np.ndarray], float], q: np.ndarray, other: np.ndarray, fit: float,
              taken: np.ndarray) -> tuple[np.ndarray, float]:
         """One frame: each part in tree order taken from ``other`` into ``q`` (its ``fit``)
-        where ``score`` is higher, each on the last; ``taken`` (parts,) set where taken."""
+        where ``score`` is higher, each on the last; ``taken`` (parts,) set where taken.  A
+        ``score`` with a ``rebase`` method (:class:`~kms2pin.ecm.silhouette.IncrementalFit`)
+        is told each pose the trials are made from."""
         pm, here, there = self.pm, self.here, self.there
+        rebase = getattr(score, "rebase", None)  # an IncrementalFit: told the pose the trials are made from
+        if rebase is not None:
+            rebase(q)
         pin.forwardKinematics(pm, there, other)
         for h, step in enumerate(self.plan):
             if step is None:
@@ -218,7 +223,7 @@ class _Parts:
                 above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
                 quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
                 trial[own] = -quat if np.dot(quat, q[own]) < 0 else quat  # the kept sign
-            if np.allclose(trial, q, rtol=0.0, atol=1e-12):
+            if np.abs(trial - q).max() <= 1e-12:  # the same pose (np.allclose's test, faster)
                 continue
             if self.robot.closures:
                 try:
@@ -228,6 +233,8 @@ class _Parts:
             f = score(trial)
             if f > fit:
                 q, fit, taken[h] = trial, f, True
+                if rebase is not None:
+                    rebase(q)
         return q, fit
 
 
@@ -279,10 +286,10 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
 
 def _scorer(tracker: Tracker, masks: Sequence, names: Sequence[str]) -> Callable[[int], Callable[[np.ndarray], float]]:
     """The scorer :func:`take_parts` and :func:`take_beside` ask once a frame: the fit at
-    ``tracker``'s sizes on frame k's masks, read once for all its trials."""
+    ``tracker``'s sizes on frame k's masks (read and checked once for all its trials),
+    counted from the moved bodies alone (:meth:`Tracker.part_fit`)."""
     def scorer(k: int) -> Callable[[np.ndarray], float]:
-        m = masks[k]
-        return lambda pose: tracker.fit(pose, m, source=names[k])
+        return tracker.part_fit(masks[k], source=names[k])
 
     return scorer
 

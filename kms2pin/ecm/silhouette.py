@@ -20,7 +20,7 @@ from .camera import Camera
 from .mstep import body_box_arrays, body_images, closest_approach, pose_arrays, world_rays
 from .projection import BBox, body_bbox
 
-__all__ = ["PoseCache", "body_coverage", "body_silhouettes", "group_counts", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
+__all__ = ["IncrementalFit", "PoseCache", "body_coverage", "body_silhouettes", "group_counts", "model_silhouette", "silhouette_counts", "silhouette_iou", "visible_bodies"]
 
 
 class _Poses(Sequence):
@@ -174,3 +174,80 @@ def silhouette_iou(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequenc
 def visible_bodies(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequence[Camera]) -> list[int]:
     """Indices of the bodies whose inner silhouette falls in at least one camera."""
     return [i for i, P in enumerate(poses) if any(body_bbox(c, P, inner[i], 0) is not None for c in cameras)]
+
+
+
+class IncrementalFit:
+    """:func:`silhouette_iou` of ``robot``'s poses against one frame's ``masks`` (bool, one
+    per camera), the bodies' semi-axes ``inner``, for trials that each differ from a
+    *base* pose (:meth:`rebase`) in a few bodies (a limb's part taken from elsewhere):
+    the same counts to the pixel, from the moved bodies alone.
+
+    The base is kept per camera as a count image (how many bodies' silhouettes cover
+    each pixel, ``silhouette_add``); a trial's counts are the base's with the moved
+    bodies' pixels at the base taken out and theirs at the trial painted in, over the box
+    that holds both (``silhouette_swap``).  A body has moved when its rotation or centre
+    differs at all.  A camera with lens distortion, a body across a camera's plane, or
+    more than 255 bodies on a pixel: :func:`silhouette_iou` itself.
+    """
+
+    def __init__(self, robot: Robot, cameras: Sequence[Camera], masks: Sequence[np.ndarray], inner: np.ndarray):
+        self.robot, self.cameras = robot, list(cameras)
+        self.masks = [np.ascontiguousarray(m, dtype=bool) for m in masks]
+        self.inner = np.asarray(inner, dtype=float).reshape(-1, 3)
+        self._key: bytes | None = None
+
+    def _full(self, Rs: np.ndarray, ts: np.ndarray) -> float:
+        return silhouette_iou(_Poses(Rs, ts), self.inner, self.cameras, self.masks, (Rs, ts))
+
+    def rebase(self, q: np.ndarray) -> float:
+        """Make ``q`` the pose the trials are counted from; returns its fit."""
+        q = np.asarray(q, dtype=float)
+        key = q.tobytes()
+        if key == self._key:
+            return self._fit
+        Rs, ts = self.robot.body_pose_arrays(q)
+        self._key, self._Rs, self._ts = key, Rs, ts
+        self._cams: list[tuple] | None = []  # per camera: the kernels' arguments, the count image
+        inter = union = 0
+        for cam, mask in zip(self.cameras, self.masks):
+            args = _union_args(cam, Rs, ts, self.inner)
+            counts = np.zeros(cam.shape, dtype=np.uint8)
+            try:
+                if args is None:
+                    raise ValueError("no kernel arguments")
+                kernels.silhouette_add(world_rays(cam), *args, counts)
+            except ValueError:
+                self._cams = None
+                break
+            self._cams.append((args, counts))
+            inter += int(np.count_nonzero(counts.astype(bool) & mask))
+            union += int(np.count_nonzero(counts.astype(bool) | mask))
+        if self._cams is None:
+            self._fit = self._full(Rs, ts)
+        else:
+            self._inter, self._union = inter, union
+            self._fit = inter / union if union else 1.0
+        return self._fit
+
+    def __call__(self, q: np.ndarray) -> float:
+        """The fit at ``q`` (:func:`silhouette_iou`), counted from the base (:meth:`rebase`
+        first)."""
+        if self._key is None:
+            raise RuntimeError("IncrementalFit: call rebase() before scoring a trial")
+        Rs, ts = self.robot.body_pose_arrays(np.asarray(q, dtype=float))
+        if self._cams is None:
+            return self._full(Rs, ts)
+        moved = np.flatnonzero((Rs != self._Rs).any(axis=(1, 2)) | (ts != self._ts).any(axis=1))
+        if not len(moved):
+            return self._fit
+        inter, union = self._inter, self._union
+        for cam, mask, (args, counts) in zip(self.cameras, self.masks, self._cams):
+            new = _union_args(cam, Rs[moved], ts[moved], self.inner[moved])
+            if new is None:
+                return self._full(Rs, ts)
+            old = (args[0][moved], args[1][moved], args[2][moved])
+            d_inter, d_union = kernels.silhouette_swap(world_rays(cam), *old, *new, counts, mask)
+            inter += d_inter
+            union += d_union
+        return inter / union if union else 1.0

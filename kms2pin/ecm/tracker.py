@@ -38,7 +38,7 @@ from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
 from .priors import GroundPrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
-from .silhouette import visible_bodies
+from .silhouette import IncrementalFit, visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
 from .symmetry import Symmetry
@@ -319,6 +319,13 @@ class Tracker:
             raise ValueError(f"q has shape {q.shape}; the model has nq = {self.robot.model.nq}")
         masks = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
         return self.ecm.fit(q, Views.of(self.cameras, masks))
+
+    def part_fit(self, masks: np.ndarray | Sequence[np.ndarray], source: str = "frame") -> IncrementalFit:
+        """:meth:`fit` on one frame's ``masks`` for poses that differ from a base pose in a
+        few bodies (:class:`~kms2pin.ecm.silhouette.IncrementalFit`: the same numbers, from
+        the moved bodies alone), at the tracker's current body sizes."""
+        masks = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
+        return IncrementalFit(self.robot, self.cameras, masks, self.ecm.sizes.inner)
 
     def e_step(self, q: np.ndarray, masks: Sequence[np.ndarray], delta_px: float,
                cameras: Sequence[Camera] | None = None) -> tuple[list[pin.SE3], list[list[BodyView]]]:

@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
+from kms2pin import native
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.initialization import coarse_search, scaled_camera
 from kms2pin.ecm.mstep import pose_arrays
 from kms2pin.ecm.raycast import render_mask
-from kms2pin.ecm.silhouette import body_coverage, group_counts, model_silhouette, silhouette_counts, silhouette_iou
+from kms2pin.ecm.silhouette import (
+    IncrementalFit,
+    body_coverage,
+    group_counts,
+    model_silhouette,
+    silhouette_counts,
+    silhouette_iou,
+)
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
@@ -122,3 +131,66 @@ def test_group_counts_with_a_distorted_camera_count_each_group_s_whole_silhouett
         sil = model_silhouette(cam, g, inner[idx])
         assert c == [int((sil & on).sum()), int((sil & off).sum())]
     assert counts.min() > 0
+
+
+def _ray_cast_iou(cams, poses, inner, masks) -> float:
+    """The fit by exact ray casting (kms2pin.ecm.raycast, an independent implementation)."""
+    sils = [render_mask(c, [(P, L) for P, L in zip(poses, inner)]) for c in cams]
+    inter = sum(int((s & m).sum()) for s, m in zip(sils, masks))
+    union = sum(int((s | m).sum()) for s, m in zip(sils, masks))
+    return inter / union if union else 1.0
+
+
+def _part_trials(robot, rng, base, n):
+    """Trials made from ``base``: one joint (and the joints below it) as in another random
+    pose, a limb's part taken from elsewhere; and the root moved (every body)."""
+    trials = []
+    for _ in range(n):
+        other = robot.random_configuration(rng, 40)
+        j = robot.joints[rng.integers(len(robot.joints))]
+        jid = robot.model.getJointId(j.name)
+        t = base.copy()
+        for k in robot.model.subtrees[jid]:
+            sl = slice(robot.model.idx_qs[k], robot.model.idx_qs[k] + robot.model.nqs[k])
+            t[sl] = other[sl]
+        trials.append(t)
+    return trials
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_the_incremental_fit_is_the_fit_to_the_pixel(distorted, monkeypatch):
+    """Trials that move one joint and those below it (and the root: every body), scored from
+    a base pose that changes as trials are kept: the same fit as silhouette_iou, and the
+    ray-cast one (to the pixel where the two silhouettes agree), on two cameras; a
+    distorted camera (the per-body path) too."""
+    robot = _robot("fullbody")
+    inner = np.array([robot.inner(b) for b in robot.bodies])
+    cams = _cams(robot)
+    if distorted:
+        cams[0] = Camera(cams[0].K, cams[0].world_T_camera, cams[0].width, cams[0].height,
+                         dist=np.array([-0.12, 0.03, 0.001, -0.0015, 0.0]))
+    rng = np.random.default_rng(7)
+    base = robot.random_configuration(rng, 40)
+    masks = render(robot, robot.random_configuration(rng, 40), cams)
+    swaps = []
+    swap = native.kernels.silhouette_swap
+    monkeypatch.setattr(native.kernels, "silhouette_swap", lambda *a: swaps.append(1) or swap(*a))
+    fit = IncrementalFit(robot, cams, masks, inner)
+    with pytest.raises(RuntimeError, match="rebase"):
+        fit(base)
+    assert fit.rebase(base) == silhouette_iou(robot.body_poses(base), inner, cams, masks)
+    fits = set()
+    for k, trial in enumerate(_part_trials(robot, rng, base, 60)):
+        poses = robot.body_poses(trial)
+        expected = silhouette_iou(poses, inner, cams, masks)
+        got = fit(trial)
+        assert got == expected
+        fits.add(got)
+        if k % 5 == 0:
+            assert fit.rebase(trial) == expected
+        if k % 20 == 0 and not distorted:
+            assert got == _ray_cast_iou(cams, poses, inner, masks)
+    assert len(fits) > 30  # the trials moved the silhouettes
+    assert (len(swaps) == 0) if distorted else (len(swaps) >= 100)  # counted from the moved bodies
+    anywhere = robot.random_configuration(rng, 40)  # every body moved
+    assert fit(anywhere) == silhouette_iou(robot.body_poses(anywhere), inner, cams, masks)
