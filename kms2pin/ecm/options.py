@@ -299,6 +299,10 @@ class LimbSearchOptions(_Group):
         3, "how many of its best-scoring directions the reach search screens for a limb it re-aims on every frame "
            "(reach_always; a lost or missed limb screens 6): 6 is slower and, on real walks, within the runs' "
            "spread of 3", range=Range(1, whole=True), cli=Cli("--reach-always-directions", "N"))
+    reach_rest: int = option(
+        2, "how many frames a limb whose reach search found nothing waits before it is searched again (0: "
+           "searched on every frame it is lost, missed or re-aimed always; slower)",
+        range=Range(0, whole=True), cli=Cli("--reach-rest", "N"))
 
 
 #: the groups of :class:`TrackerOptions`: attribute name -> class

@@ -30,7 +30,7 @@ those refined by the frame's ECM (none that screened more than :data:`REFINE_MAR
 below the frame's fit), and the best kept if its fit beats by :data:`GAIN`
 both the frame's and that of the frame's pose run on by the same ECM (more iterations
 gain a little by themselves).  A body whose search found nothing rests for
-:data:`REST_FRAMES` frames.
+:data:`REST_FRAMES` frames (``rest``; the option ``reach_rest``).
 
 An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
@@ -130,8 +130,9 @@ class ReachSearch:
     with ``ecm`` (module docstring)."""
 
     def __init__(self, robot: Robot, ecm: FrameECM, always: str = "none", feet: Collection[int] = (),
-                 skip: bool = True, always_directions: int = ALWAYS_REFINED):
+                 skip: bool = True, always_directions: int = ALWAYS_REFINED, rest: int = REST_FRAMES):
         self.robot, self.ecm, self.skip, self.always_directions = robot, ecm, skip, always_directions
+        self.rest = rest  # frames a body whose search found nothing waits (REST_FRAMES; 0: none)
         m = robot.model
         by_name = {j.name: j for j in robot.joints}
         body_joint = {i: m.frames[f].parentJoint for i, f in enumerate(robot.frame_ids)}
@@ -398,7 +399,7 @@ class ReachSearch:
         fit and the moves kept."""
         self._searches += 1
         moves: list[LimbMove] = []
-        tried = {i for i, k in self._failed.items() if self._searches - k <= REST_FRAMES}
+        tried = {i for i, k in self._failed.items() if self._searches - k <= self.rest}
         base = None  # (q run on by ECM, its fit), once a trial looks like a gain
         todo = self._todo(q, views, tried)
         while todo:

@@ -172,7 +172,8 @@ class Tracker:
         limbs that do not reach the floor at the starting pose (its feet as the ground prior's)."""
         lim = opts.limbs
         on = feet(self.robot, self.q, self.sizes.inner, opts.priors.up)[0] if lim.reach_always == "arms" else ()
-        return ReachSearch(self.robot, self.ecm, lim.reach_always, on, lim.reach_skip, lim.reach_always_directions)
+        return ReachSearch(self.robot, self.ecm, lim.reach_always, on, lim.reach_skip, lim.reach_always_directions,
+                           lim.reach_rest)
 
     def _set_ground(self, q: np.ndarray) -> None:
         """The ground prior (``ground``) with its feet and floor (unless ``ground_height``

@@ -104,6 +104,25 @@ def test_a_body_no_trial_of_which_beats_its_pose_costs_no_ecm_run(monkeypatch):
     assert reach._failed == {arm: 1}  # it rests for the next REST_FRAMES frames
 
 
+@pytest.mark.parametrize("rest", [0, 2])
+def test_a_body_whose_search_found_nothing_rests_as_many_frames_as_told(rest, monkeypatch):
+    """A limb reported lost on every frame while it fits (the truth): searched on the first
+    frame, then again only after ``rest`` frames (the tracker's option reach_rest)."""
+    robot, qt, _, cams, masks = _arm_scene(True)
+    tr = Tracker(robot, cams, q0=qt, calibrate_sizes=False, reach_search=True, reach_rest=rest)
+    reach = tr.reach
+    assert reach.rest == rest
+    views = Views.of(cams, masks)
+    arm = robot.index("leftUpperArm")
+    monkeypatch.setattr(reach, "lost", lambda q, v: [arm])
+    searched = []
+    starts = reach._starts
+    monkeypatch.setattr(reach, "_starts", lambda q, r, v: searched.append(reach._searches) or starts(q, r, v))
+    for _ in range(7):
+        reach.search(qt, tr.fit(qt, masks), views, None, None, new_timings())
+    assert searched == ([1, 2, 3, 4, 5, 6, 7] if rest == 0 else [1, 4, 7])
+
+
 def _bent_arm_scene():
     """The human with its left arm raised sideways and the elbow bent 90 degrees, seen by
     two cameras; the start has the upper arm turned half a turn about its own axis, so
