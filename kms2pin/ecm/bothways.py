@@ -28,7 +28,7 @@ part is tried on each frame from the frames beside it (:func:`take_beside`): a l
 on a few frames spreads to the frames on either side where the masks bear it out.  It
 costs a second track, and uses the frames after each frame, so it is for a finished
 recording.  :func:`beside` takes the frames beside on one track alone, without the
-backward pass (tens of seconds for a few hundred frames, not a second track).
+backward pass (seconds for a few hundred frames, not a second track).
 """
 
 from __future__ import annotations

@@ -390,11 +390,12 @@ class Preset(Mapping):
 SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 #: real people (their shape not the model's ellipsoids, arms thin and fast): the learnt
 #: motion model, the reach search (the arms re-aimed on every frame, each search screened:
-#: an arm lost in front of the trunk is neither lost nor missed), the spine's twist held
-#: near rest and the round limbs' within 90° of it, which no silhouette shows
-#: (docs/tracking.md, "Real motion")
+#: an arm lost in front of the trunk is neither lost nor missed; a limb searched again on
+#: the next frame even when its search found nothing), the spine's twist held near rest
+#: and the round limbs' within 90° of it, which no silhouette shows (docs/tracking.md,
+#: "Real motion")
 _PEOPLE = {"prediction": "learnt", "reach_search": True}
-PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": False, "spine_twist": 0.05,
+PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": False, "reach_rest": 0, "spine_twist": 0.05,
                            "twist_prior": 1.0, "twist_free": 90.0})
 #: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
 #: priors (they made the one-camera walk worse), and the upright, rest and ground priors

@@ -92,10 +92,10 @@ def test_options_and_keywords_give_the_same_track():
     assert people.reach is not None and people.options.iteration.prediction == "learnt"
     pri = people.options.priors
     assert (pri.spine_twist, pri.twist_prior, pri.twist_free) == (0.05, 1.0, 90.0)
-    assert (people.options.limbs.reach_always, people.reach.skip) == ("arms", False)
-    # one camera keeps the reach search as it was: the arms always re-aimed are measured
-    # with two and four cameras only
-    twists = ("spine_twist", "twist_prior", "twist_free", "reach_always", "reach_skip")
+    assert (people.options.limbs.reach_always, people.reach.skip, people.reach.rest) == ("arms", False, 0)
+    # one camera keeps the reach search as it was: the arms always re-aimed, and searched on
+    # every frame, are measured with two and four cameras only
+    twists = ("spine_twist", "twist_prior", "twist_free", "reach_always", "reach_skip", "reach_rest")
     shared = {k: v for k, v in dict(PEOPLE).items() if k not in twists}
     assert shared.items() <= dict(PEOPLE_ONE_CAMERA).items()
     assert not set(twists) & set(dict(PEOPLE_ONE_CAMERA))
