@@ -1038,17 +1038,27 @@ static int union_image(PyObject *obj, Buf *b, int writable, const char *name, Py
 
 /* Body i of A, e, box ORed into img (rows `stride` bytes apart; its pixel (0, 0) is the
  * image's (v0, u0)), the box checked to lie in it. */
-static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
-                       Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
+/* Body i of A, e, box (b[1], b[2], b[3]): its box (u0, v0, u1, v1) into box and its
+ * quadric into kq; 0 (kq unset) if the box is empty. */
+static int body_quadric(const Buf *b, Py_ssize_t i, Py_ssize_t *box, Quadric *kq)
 {
-    Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
-    Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
-    if (bu1 <= bu0 || bv1 <= bv0) return;
+    for (int k = 0; k < 4; k++) box[k] = (Py_ssize_t)AT(b[3], i, k);
+    if (box[2] <= box[0] || box[3] <= box[1]) return 0;
     double A[9], e[3], Ae[3];
     for (int j = 0; j < 9; j++) A[j] = AT(b[1], i, j);
     for (int j = 0; j < 3; j++) e[j] = AT(b[2], i, j);
     for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
-    const Quadric kq = quadric(A, e, Ae);
+    *kq = quadric(A, e, Ae);
+    return 1;
+}
+
+static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
+                       Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
+{
+    Py_ssize_t box[4];
+    Quadric kq;
+    if (!body_quadric(b, i, box, &kq)) return;
+    const Py_ssize_t bu0 = box[0], bv0 = box[1], bu1 = box[2], bv1 = box[3];
     for (Py_ssize_t v = bv0; v < bv1; v++) {
         const double *D = rays + 3 * (v * W + bu0);
         unsigned char *o = img + (v - v0) * stride + (bu0 - u0);
@@ -1061,14 +1071,10 @@ static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_
 static int count_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
                       Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
 {
-    Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
-    Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
-    if (bu1 <= bu0 || bv1 <= bv0) return 0;
-    double A[9], e[3], Ae[3];
-    for (int j = 0; j < 9; j++) A[j] = AT(b[1], i, j);
-    for (int j = 0; j < 3; j++) e[j] = AT(b[2], i, j);
-    for (int r = 0; r < 3; r++) Ae[r] = A[3 * r] * e[0] + A[3 * r + 1] * e[1] + A[3 * r + 2] * e[2];
-    const Quadric kq = quadric(A, e, Ae);
+    Py_ssize_t box[4];
+    Quadric kq;
+    if (!body_quadric(b, i, box, &kq)) return 0;
+    const Py_ssize_t bu0 = box[0], bv0 = box[1], bu1 = box[2], bv1 = box[3];
     int full = 0;
     for (Py_ssize_t v = bv0; v < bv1; v++) {
         const double *D = rays + 3 * (v * W + bu0);
