@@ -1199,6 +1199,16 @@ static PyObject *silhouette_counts(PyObject *self, PyObject *const *args, Py_ssi
     Py_RETURN_NONE;
 }
 
+/* A count image must be uint8 (a bool image holds no counts): 0, or -1 with TypeError. */
+static int counts_arg(const Buf *b)
+{
+    if (b->view.format == NULL || strcmp(b->view.format, "B") != 0) {
+        PyErr_SetString(PyExc_TypeError, "counts must be a 2-D uint8 image");
+        return -1;
+    }
+    return 0;
+}
+
 /* silhouette_add(rays (H,W,3), A (n,9), e (n,3), box (n,4), counts (H,W) uint8)
  * counts + 1 on each pixel of each body's silhouette (as silhouette_union paints it);
  * ValueError if a count would pass 255. */
@@ -1211,7 +1221,8 @@ static PyObject *silhouette_add(PyObject *self, PyObject *const *args, Py_ssize_
     }
     Buf b[5];
     memset(b, 0, sizeof(b));
-    if (union_args(args, b) < 0 || union_image(args[4], &b[4], 1, "counts", b[0].view.shape[0], b[0].view.shape[1]) < 0) {
+    if (union_args(args, b) < 0 || union_image(args[4], &b[4], 1, "counts", b[0].view.shape[0], b[0].view.shape[1]) < 0 ||
+        counts_arg(&b[4]) < 0) {
         release(b, 5);
         return NULL;
     }
@@ -1247,7 +1258,8 @@ static PyObject *silhouette_swap(PyObject *self, PyObject *const *args, Py_ssize
     PyObject *const na[4] = {args[0], args[4], args[5], args[6]};
     int ok = union_args(args, b) == 0 && union_args(na, nb) == 0;
     Py_ssize_t H = ok ? b[0].view.shape[0] : 0, W = ok ? b[0].view.shape[1] : 0;
-    ok = ok && union_image(args[7], &b[4], 0, "counts", H, W) == 0 && union_image(args[8], &b[5], 0, "mask", H, W) == 0;
+    ok = ok && union_image(args[7], &b[4], 0, "counts", H, W) == 0 && counts_arg(&b[4]) == 0 &&
+         union_image(args[8], &b[5], 0, "mask", H, W) == 0;
     if (!ok) {
         release(b, 6);
         release(nb, 4);

@@ -493,34 +493,41 @@ def silhouette_counts(rays, A, e, box, offset, on, off, counts) -> None:
         counts[k] = np.count_nonzero(img & on[v0:v1, u0:u1]), np.count_nonzero(img & off[v0:v1, u0:u1])
 
 
-def _count(rays, A, e, box, img, v0: int, u0: int) -> None:
+def _count(rays, A, e, box, img, v0: int, u0: int, full: str) -> None:
     """Bodies ``A``, ``e``, ``box`` counted into ``img`` (uint8, each pixel + 1 per body), as
-    :func:`_paint` paints them; ValueError if a count would pass 255."""
+    :func:`_paint` paints them; ValueError ``full`` if a count would pass 255."""
     for Ai, ei, bi in zip(A, e, box):
         one = np.zeros(img.shape, dtype=bool)
         _paint(rays, Ai[None], ei[None], bi[None], one, v0, u0)
         if (img[one] == 255).any():
-            raise ValueError("silhouette_add: more than 255 bodies on a pixel")
+            raise ValueError(full)
         img += one
+
+
+def _counts_arg(counts) -> None:
+    if np.asarray(counts).dtype != np.uint8 or np.ndim(counts) != 2:
+        raise TypeError("counts must be a 2-D uint8 image")
 
 
 def silhouette_add(rays, A, e, box, counts) -> None:
     """``counts`` (H, W) uint8 + 1 on each pixel of each body's silhouette (as
     :func:`silhouette_union` paints it); ValueError if a count would pass 255."""
-    _count(rays, A, e, box, counts, 0, 0)
+    _counts_arg(counts)
+    _count(rays, A, e, box, counts, 0, 0, "silhouette_add: more than 255 bodies on a pixel")
 
 
 def silhouette_swap(rays, A_old, e_old, box_old, A_new, e_new, box_new, counts, mask) -> tuple[int, int]:
     """With ``counts`` (H, W) how many bodies cover each pixel (:func:`silhouette_add`), the
     old bodies among them: the change (intersection, union) of the union's counts against
     ``mask`` when the old bodies are taken out and the new ones painted in."""
+    _counts_arg(counts)
     b = np.vstack([np.reshape(box_old, (-1, 4)), np.reshape(box_new, (-1, 4))])
     b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])].astype(int)
     if not len(b):
         return 0, 0
     u0, v0, u1, v1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
     old = np.zeros((v1 - v0, u1 - u0), dtype=np.uint8)
-    _count(rays, A_old, e_old, box_old, old, v0, u0)
+    _count(rays, A_old, e_old, box_old, old, v0, u0, "silhouette_swap: the old bodies are not all in counts")
     new = np.zeros(old.shape, dtype=bool)
     _paint(rays, A_new, e_new, box_new, new, v0, u0)
     c, m = counts[v0:v1, u0:u1], mask[v0:v1, u0:u1] != 0

@@ -677,6 +677,13 @@ def test_the_count_kernels_refuse_counts_they_cannot_hold(backend):
     swap = native.implementations("silhouette_swap")[backend]
     with pytest.raises(ValueError, match="not all in counts"):
         swap(rays, A, e, boxes, A[:1], e[:1], boxes[:1], np.zeros((60, 80), np.uint8), np.ones((60, 80), bool))
+    with pytest.raises(ValueError, match="not all in counts"):  # the old bodies past 255 on a pixel
+        swap(rays, *(np.repeat(x[:1], 300, axis=0) for x in (A, e, boxes)), A[:1], e[:1], boxes[:1],
+             np.full((60, 80), 255, np.uint8), np.ones((60, 80), bool))
+    with pytest.raises(TypeError, match="uint8"):  # a bool image holds no counts
+        add(rays, A, e, boxes, np.zeros((60, 80), bool))
+    with pytest.raises(TypeError, match="uint8"):
+        swap(rays, A, e, boxes, A, e, boxes, np.zeros((60, 80), bool), np.ones((60, 80), bool))
 
 
 def test_the_silhouette_kernels_refuse_boxes_off_the_image():

@@ -89,7 +89,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beside", action="store_true",
                    help="also write beside.csv, the track with each part (as --both-ways takes them) taken on "
                         "each frame from the frames beside it where that fits better, without the backward pass (seconds "
-                        "for a few hundred frames, not a second track; motion.bvh, animation.html and --smooth then use it; "
+                        "to tens of seconds for a few hundred frames, not a second track; motion.bvh, animation.html and --smooth then use it; "
                         "--both-ways does this itself)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "

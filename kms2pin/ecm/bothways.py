@@ -28,7 +28,7 @@ part is tried on each frame from the frames beside it (:func:`take_beside`): a l
 on a few frames spreads to the frames on either side where the masks bear it out.  It
 costs a second track, and uses the frames after each frame, so it is for a finished
 recording.  :func:`beside` takes the frames beside on one track alone, without the
-backward pass (seconds for a few hundred frames, not a second track).
+backward pass (seconds to tens of seconds for a few hundred frames, not a second track).
 """
 
 from __future__ import annotations
@@ -223,7 +223,7 @@ class _Parts:
                 above = here.oMi[pm.parents[jid]].rotation @ pm.jointPlacements[jid].rotation
                 quat = pin.Quaternion(above.T @ there.oMi[jid].rotation).coeffs()
                 trial[own] = -quat if np.dot(quat, q[own]) < 0 else quat  # the kept sign
-            if np.abs(trial - q).max() <= 1e-12:  # the same pose (np.allclose's test, faster)
+            if np.abs(trial - q).max() <= 1e-12:  # the same pose (np.allclose's test for finite poses, faster)
                 continue
             if self.robot.closures:
                 try:

@@ -30,7 +30,7 @@ those refined by the frame's ECM (none that screened more than :data:`REFINE_MAR
 below the frame's fit), and the best kept if its fit beats by :data:`GAIN`
 both the frame's and that of the frame's pose run on by the same ECM (more iterations
 gain a little by themselves).  A body whose search found nothing rests for
-:data:`REST_FRAMES` frames (``rest``; the option ``reach_rest``).
+``rest`` frames (the option ``reach_rest``; by default :data:`REST_FRAMES`).
 
 An arm lost in front of the trunk is neither lost nor missed (its silhouette stays on
 the mask and its true image leaves no blob), so the search can also re-aim chosen limbs
@@ -78,7 +78,8 @@ TWISTS_DEG = (45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0)
 #: run on by as many ECM iterations (which gain a little by themselves); 0.01 until the
 #: twelfth session kept too few of the arms' moves (docs/design/tracking-history.md)
 GAIN = 0.005
-#: a body whose search found nothing is not searched again for this many frames
+#: by default, a body whose search found nothing is not searched again for this many
+#: frames (``ReachSearch(rest=)``, the option ``reach_rest``)
 REST_FRAMES = 2
 #: how many of the best-scoring trials are screened by ECM on binned masks, and how many
 #: of those refined at full resolution

@@ -194,7 +194,7 @@ class IncrementalFit:
     def __init__(self, robot: Robot, cameras: Sequence[Camera], masks: Sequence[np.ndarray], inner: np.ndarray):
         self.robot, self.cameras = robot, list(cameras)
         self.masks = [np.ascontiguousarray(m, dtype=bool) for m in masks]
-        self.inner = np.asarray(inner, dtype=float).reshape(-1, 3)
+        self.inner = np.array(inner, dtype=float).reshape(-1, 3)  # a copy: the tracker's sizes change in place
         self._key: bytes | None = None
 
     def _full(self, Rs: np.ndarray, ts: np.ndarray) -> float:
@@ -207,8 +207,7 @@ class IncrementalFit:
         if key == self._key:
             return self._fit
         Rs, ts = self.robot.body_pose_arrays(q)
-        self._key, self._Rs, self._ts = key, Rs, ts
-        self._cams: list[tuple] | None = []  # per camera: the kernels' arguments, the count image
+        cams: list[tuple] | None = []  # per camera: the kernels' arguments, the count image
         inter = union = 0
         for cam, mask in zip(self.cameras, self.masks):
             args = _union_args(cam, Rs, ts, self.inner)
@@ -218,17 +217,16 @@ class IncrementalFit:
                     raise ValueError("no kernel arguments")
                 kernels.silhouette_add(world_rays(cam), *args, counts)
             except ValueError:
-                self._cams = None
+                cams = None
                 break
-            self._cams.append((args, counts))
+            cams.append((args, counts))
             inter += int(np.count_nonzero(counts.astype(bool) & mask))
             union += int(np.count_nonzero(counts.astype(bool) | mask))
-        if self._cams is None:
-            self._fit = self._full(Rs, ts)
-        else:
-            self._inter, self._union = inter, union
-            self._fit = inter / union if union else 1.0
-        return self._fit
+        fit = self._full(Rs, ts) if cams is None else (inter / union if union else 1.0)
+        # the new base is set whole, last: a base half made is never used
+        self._Rs, self._ts, self._cams, self._inter, self._union, self._fit = Rs, ts, cams, inter, union, fit
+        self._key = key
+        return fit
 
     def __call__(self, q: np.ndarray) -> float:
         """The fit at ``q`` (:func:`silhouette_iou`), counted from the base (:meth:`rebase`

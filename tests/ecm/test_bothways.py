@@ -465,10 +465,35 @@ def test_one_track_takes_a_part_from_the_frames_beside_without_a_backward_pass(w
     assert np.delete(err, 5).max() < 1e-3 * robot.height
     assert np.array_equal(bs.q[~bs.taken.any(axis=1)], track[~bs.taken.any(axis=1)])
     # each frame's fit is its pose's, at the tracker's sizes, and never below the track's
-    assert np.allclose(bs.fit, [tracker.fit(x, m) for x, m in zip(bs.q, masks)], rtol=0, atol=1e-15)
+    assert np.array_equal(bs.fit, [tracker.fit(x, m) for x, m in zip(bs.q, masks)])  # the same counts, to the pixel
     assert (bs.fit >= [tracker.fit(x, m) for x, m in zip(track, masks)]).all()
     none = beside(tracker, masks, track, sweeps=0)
     assert np.array_equal(none.q, track) and not none.taken.any()
+    # the fits counted from the moved bodies (rebased on each pose kept) take what the
+    # whole silhouettes' fits take: a scorer without ``rebase``
+    def whole(k):
+        return lambda pose: tracker.fit(pose, masks[k])
+
+    fit0 = [tracker.fit(x, m) for x, m in zip(track, masks)]
+    q, fit, taken = take_beside(robot, whole, track, fit0)
+    assert np.array_equal(q, bs.q) and np.array_equal(fit, bs.fit) and np.array_equal(taken, bs.taken)
+    # and each pose kept becomes the base the next trials are counted from
+    bases = {}
+
+    class Spy:
+        def __init__(self, k):
+            self.k, self.fit = k, tracker.part_fit(masks[k])
+
+        def __call__(self, pose):
+            return self.fit(pose)
+
+        def rebase(self, pose):
+            bases.setdefault(self.k, []).append(pose.copy())
+            return self.fit.rebase(pose)
+
+    q, _, taken = take_beside(robot, Spy, track, fit0)
+    for k in np.flatnonzero(taken.any(axis=1)):
+        assert any(np.array_equal(b, q[k]) for b in bases[k])
 
 
 def test_one_track_beside_checks_its_poses_and_names_frames_in_errors(walk):

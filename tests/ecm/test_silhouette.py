@@ -13,6 +13,7 @@ from kms2pin.ecm.mstep import pose_arrays
 from kms2pin.ecm.raycast import render_mask
 from kms2pin.ecm.silhouette import (
     IncrementalFit,
+    _union_args,
     body_coverage,
     group_counts,
     model_silhouette,
@@ -194,3 +195,11 @@ def test_the_incremental_fit_is_the_fit_to_the_pixel(distorted, monkeypatch):
     assert (len(swaps) == 0) if distorted else (len(swaps) >= 100)  # counted from the moved bodies
     anywhere = robot.random_configuration(rng, 40)  # every body moved
     assert fit(anywhere) == silhouette_iou(robot.body_poses(anywhere), inner, cams, masks)
+    fit.rebase(base)
+    assert fit(base.copy()) == fit.rebase(base)  # nothing moved
+    # the root at the first camera, its bodies across the camera's plane: the per-body path
+    close = base.copy()
+    close[:3] = cams[0].centre + 0.3 * np.asarray(cams[0].world_R_camera)[:, 2]
+    Rs, ts = robot.body_pose_arrays(close)
+    assert _union_args(cams[0], Rs, ts, inner) is None
+    assert fit(close) == silhouette_iou(robot.body_poses(close), inner, cams, masks)
