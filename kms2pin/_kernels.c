@@ -1036,8 +1036,6 @@ static int union_image(PyObject *obj, Buf *b, int writable, const char *name, Py
     return 0;
 }
 
-/* Body i of A, e, box ORed into img (rows `stride` bytes apart; its pixel (0, 0) is the
- * image's (v0, u0)), the box checked to lie in it. */
 /* Body i of A, e, box (b[1], b[2], b[3]): its box (u0, v0, u1, v1) into box and its
  * quadric into kq; 0 (kq unset) if the box is empty. */
 static int body_quadric(const Buf *b, Py_ssize_t i, Py_ssize_t *box, Quadric *kq)
@@ -1052,6 +1050,8 @@ static int body_quadric(const Buf *b, Py_ssize_t i, Py_ssize_t *box, Quadric *kq
     return 1;
 }
 
+/* Body i of A, e, box ORed into img (rows `stride` bytes apart; its pixel (0, 0) is the
+ * image's (v0, u0)), the box checked to lie in it. */
 static void paint_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t W, unsigned char *img,
                        Py_ssize_t stride, Py_ssize_t v0, Py_ssize_t u0)
 {
@@ -1086,6 +1086,22 @@ static int count_body(const Buf *b, Py_ssize_t i, const double *rays, Py_ssize_t
         }
     }
     return full ? -1 : 0;
+}
+
+/* Grows the box (v0, u0)-(v1, u1) to hold boxes i0..i1 of box (n, 4: u0, v0, u1, v1),
+ * the empty ones left out. */
+static void grow_box(const Buf *box, Py_ssize_t i0, Py_ssize_t i1, Py_ssize_t *v0, Py_ssize_t *u0, Py_ssize_t *v1,
+                     Py_ssize_t *u1)
+{
+    for (Py_ssize_t i = i0; i < i1; i++) {
+        Py_ssize_t bu0 = (Py_ssize_t)AT(*box, i, 0), bv0 = (Py_ssize_t)AT(*box, i, 1);
+        Py_ssize_t bu1 = (Py_ssize_t)AT(*box, i, 2), bv1 = (Py_ssize_t)AT(*box, i, 3);
+        if (bu1 <= bu0 || bv1 <= bv0) continue;
+        *v0 = bv0 < *v0 ? bv0 : *v0;
+        *u0 = bu0 < *u0 ? bu0 : *u0;
+        *v1 = bv1 > *v1 ? bv1 : *v1;
+        *u1 = bu1 > *u1 ? bu1 : *u1;
+    }
 }
 
 /* The rays, A, e and box arguments (b[0..3]); 0 or -1 with an exception set. */
@@ -1168,15 +1184,7 @@ static PyObject *silhouette_counts(PyObject *self, PyObject *const *args, Py_ssi
     const double *rays = (const double *)b[0].view.buf;
     for (Py_ssize_t k = 0; k < K; k++) {
         Py_ssize_t i0 = (Py_ssize_t)V(b[4], k), i1 = (Py_ssize_t)V(b[4], k + 1), v0 = H, u0 = W, v1 = 0, u1 = 0;
-        for (Py_ssize_t i = i0; i < i1; i++) { /* the bounding box of the group's boxes */
-            Py_ssize_t bu0 = (Py_ssize_t)AT(b[3], i, 0), bv0 = (Py_ssize_t)AT(b[3], i, 1);
-            Py_ssize_t bu1 = (Py_ssize_t)AT(b[3], i, 2), bv1 = (Py_ssize_t)AT(b[3], i, 3);
-            if (bu1 <= bu0 || bv1 <= bv0) continue;
-            v0 = bv0 < v0 ? bv0 : v0;
-            u0 = bu0 < u0 ? bu0 : u0;
-            v1 = bv1 > v1 ? bv1 : v1;
-            u1 = bu1 > u1 ? bu1 : u1;
-        }
+        grow_box(&b[3], i0, i1, &v0, &u0, &v1, &u1); /* the bounding box of the group's boxes */
         Py_ssize_t w = u1 - u0, n_on = 0, n_off = 0;
         if (v1 > v0 && w > 0) {
             memset(scratch, 0, (size_t)((v1 - v0) * w));
@@ -1266,17 +1274,8 @@ static PyObject *silhouette_swap(PyObject *self, PyObject *const *args, Py_ssize
         return NULL;
     }
     Py_ssize_t v0 = H, u0 = W, v1 = 0, u1 = 0;
-    const Buf *boxes[2] = {&b[3], &nb[3]};
-    for (int g = 0; g < 2; g++) /* the bounding box of both groups' boxes */
-        for (Py_ssize_t i = 0; i < boxes[g]->view.shape[0]; i++) {
-            Py_ssize_t bu0 = (Py_ssize_t)AT(*boxes[g], i, 0), bv0 = (Py_ssize_t)AT(*boxes[g], i, 1);
-            Py_ssize_t bu1 = (Py_ssize_t)AT(*boxes[g], i, 2), bv1 = (Py_ssize_t)AT(*boxes[g], i, 3);
-            if (bu1 <= bu0 || bv1 <= bv0) continue;
-            v0 = bv0 < v0 ? bv0 : v0;
-            u0 = bu0 < u0 ? bu0 : u0;
-            v1 = bv1 > v1 ? bv1 : v1;
-            u1 = bu1 > u1 ? bu1 : u1;
-        }
+    grow_box(&b[3], 0, b[3].view.shape[0], &v0, &u0, &v1, &u1); /* the bounding box of both groups' boxes */
+    grow_box(&nb[3], 0, nb[3].view.shape[0], &v0, &u0, &v1, &u1);
     Py_ssize_t d_inter = 0, d_union = 0, w = u1 - u0, h = v1 - v0;
     if (h > 0 && w > 0) {
         unsigned char *old = (unsigned char *)PyMem_Calloc((size_t)(2 * h * w), 1);

@@ -477,17 +477,23 @@ def silhouette_union(rays, A, e, box, out) -> None:
     _paint(rays, A, e, box, out, 0, 0)
 
 
+def _bounding_box(box) -> tuple[int, int, int, int] | None:
+    """(u0, v0, u1, v1) holding every non-empty box of ``box`` (n, 4), None if none is."""
+    b = np.reshape(box, (-1, 4))
+    b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])].astype(int)
+    return (b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()) if len(b) else None
+
+
 def silhouette_counts(rays, A, e, box, offset, on, off, counts) -> None:
     """``counts[k]``: how many pixels of the union of bodies ``offset[k]:offset[k+1]``
     (as :func:`silhouette_union`'s) the images ``on`` and ``off`` hold."""
     for k in range(len(offset) - 1):
         i0, i1 = int(offset[k]), int(offset[k + 1])
-        b = box[i0:i1]
-        b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])].astype(int)
-        if not len(b):
+        bb = _bounding_box(box[i0:i1])
+        if bb is None:
             counts[k] = 0.0
             continue
-        u0, v0, u1, v1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
+        u0, v0, u1, v1 = bb
         img = np.zeros((v1 - v0, u1 - u0), dtype=bool)
         _paint(rays, A[i0:i1], e[i0:i1], box[i0:i1], img, v0, u0)
         counts[k] = np.count_nonzero(img & on[v0:v1, u0:u1]), np.count_nonzero(img & off[v0:v1, u0:u1])
@@ -521,11 +527,10 @@ def silhouette_swap(rays, A_old, e_old, box_old, A_new, e_new, box_new, counts, 
     old bodies among them: the change (intersection, union) of the union's counts against
     ``mask`` when the old bodies are taken out and the new ones painted in."""
     _counts_arg(counts)
-    b = np.vstack([np.reshape(box_old, (-1, 4)), np.reshape(box_new, (-1, 4))])
-    b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])].astype(int)
-    if not len(b):
+    bb = _bounding_box(np.vstack([np.reshape(box_old, (-1, 4)), np.reshape(box_new, (-1, 4))]))
+    if bb is None:
         return 0, 0
-    u0, v0, u1, v1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
+    u0, v0, u1, v1 = bb
     old = np.zeros((v1 - v0, u1 - u0), dtype=np.uint8)
     _count(rays, A_old, e_old, box_old, old, v0, u0, "silhouette_swap: the old bodies are not all in counts")
     new = np.zeros(old.shape, dtype=bool)

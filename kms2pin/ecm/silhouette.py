@@ -176,7 +176,6 @@ def visible_bodies(poses: Sequence[pin.SE3], inner: np.ndarray, cameras: Sequenc
     return [i for i, P in enumerate(poses) if any(body_bbox(c, P, inner[i], 0) is not None for c in cameras)]
 
 
-
 class IncrementalFit:
     """:func:`silhouette_iou` of ``robot``'s poses against one frame's ``masks`` (bool, one
     per camera), the bodies' semi-axes ``inner``, for trials that each differ from a
@@ -213,15 +212,17 @@ class IncrementalFit:
             args = _union_args(cam, Rs, ts, self.inner)
             counts = np.zeros(cam.shape, dtype=np.uint8)
             try:
-                if args is None:
-                    raise ValueError("no kernel arguments")
-                kernels.silhouette_add(world_rays(cam), *args, counts)
-            except ValueError:
+                if args is not None:
+                    kernels.silhouette_add(world_rays(cam), *args, counts)
+            except ValueError:  # more than 255 bodies on a pixel
+                args = None
+            if args is None:
                 cams = None
                 break
             cams.append((args, counts))
-            inter += int(np.count_nonzero(counts.astype(bool) & mask))
-            union += int(np.count_nonzero(counts.astype(bool) | mask))
+            covered = counts != 0
+            inter += int(np.count_nonzero(covered & mask))
+            union += int(np.count_nonzero(covered | mask))
         fit = self._full(Rs, ts) if cams is None else (inter / union if union else 1.0)
         # the new base is set whole, last: a base half made is never used
         self._Rs, self._ts, self._cams, self._inter, self._union, self._fit = Rs, ts, cams, inter, union, fit
