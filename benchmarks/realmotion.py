@@ -78,6 +78,7 @@ from kms2pin.bvh import BvhFile, ImportOptions, import_bvh, read_bvh  # noqa: E4
 from kms2pin.commands._outputs import replaced  # noqa: E402
 from kms2pin.ecm import PEOPLE, PEOPLE_ONE_CAMERA, Camera, Tracker  # noqa: E402
 from kms2pin.ecm.evaluate import ray_parts  # noqa: E402
+from kms2pin.ecm.limbs import hinged_bodies, sides  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.smoothing import smooth  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
@@ -380,6 +381,51 @@ def arm_probe(seq: Sequence, tracker: Tracker, qs, masks, truth: np.ndarray, eve
             "fit_true": r[:, 1].mean(), "wrist_track": r[:, 2].mean(), "wrist_true": r[:, 3].mean()}
 
 
+#: a frame is lost above this mean error (mm; the issue's two-camera worst frame); a lost
+#: ankle or wrist is this far from the truth's (mm); the trunk is twisted when the chest's
+#: left/right axis is this far from the pelvis's (deg; the truth's stay within 26 on every case)
+LOST_MM = 120.0
+LOST_END_MM = 250.0
+TWISTED_DEG = 45.0
+#: the ankles' and wrists' places in JOINTS
+ANKLES, WRISTS = (2, 5), (8, 11)
+
+
+def losses(model: Robot, qs, truth: np.ndarray, err: np.ndarray) -> dict[str, int]:
+    """What the frames above :data:`LOST_MM` (``err``, mm) have lost, each counted once per
+    kind: ``twisted``, the chest turned from the pelvis (their sagittal planes'
+    normals, :func:`~kms2pin.ecm.limbs.sides`, more than :data:`TWISTED_DEG` apart);
+    ``arms_across`` and ``legs_across``, an arm's root across the chest's midline (the
+    arms traded through it) or a leg's across the pelvis's; ``ankle`` and ``wrist``, one
+    more than :data:`LOST_END_MM` off (a leg, an arm lost); ``other``, none of these."""
+    sd = sides(model, hinged_bodies(model))
+    out = {"frames": 0, "twisted": 0, "arms_across": 0, "legs_across": 0, "ankle": 0, "wrist": 0, "other": 0}
+    if sd is None:
+        return out
+    joint_of = {a: int(model.model.frames[model.frame_ids[a]].parentJoint) for a in {int(a) for a in sd.anchor}}
+    pelvis, chest = sorted(joint_of, key=joint_of.get) if len(joint_of) == 2 else (None, None)
+    normals = {int(a): n for a, n in zip(sd.anchor, sd.normal)}
+    legs = np.array([int(a) == pelvis for a in sd.anchor])
+    for q, t, e in zip(qs, truth, err):
+        if e <= LOST_MM:
+            continue
+        out["frames"] += 1
+        poses = model.body_poses(q)
+        Rs = np.array([P.rotation for P in poses])
+        ts = np.array([P.translation for P in poses])
+        side = np.einsum("kij,kj,ki->k", Rs[sd.anchor], sd.normal, ts[sd.body] - ts[sd.anchor]) * sd.sign
+        twisted = pelvis is not None and float((Rs[pelvis] @ normals[pelvis]) @ (Rs[chest] @ normals[chest])) < \
+            np.cos(np.radians(TWISTED_DEG))
+        off = np.linalg.norm(points(model, q, JOINTS) - t, axis=1) * 1e3
+        kinds = {"twisted": twisted, "arms_across": bool((side < 0)[~legs].any()),
+                 "legs_across": bool((side < 0)[legs].any()), "ankle": off[list(ANKLES)].max() > LOST_END_MM,
+                 "wrist": off[list(WRISTS)].max() > LOST_END_MM}
+        for k, v in kinds.items():
+            out[k] += int(v)
+        out["other"] += int(not any(kinds.values()))
+    return out
+
+
 def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references: bool, options: dict,
              preset: bool = True, probe: bool = False) -> dict:
     """Track one case (with its preset unless not ``preset``: the tracker's defaults) and
@@ -401,6 +447,12 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     print(f"{name:16s} tracked        | {summary(err, flex_rmse(q))} | {fps:5.1f} fr/s | {flagged} frames flagged",
           flush=True)
     row = {"mean": err.mean(), "worst": err.max(), "flexion": flex_rmse(q), "fps": fps}
+    lost = losses(seq.model, q, truth, err)
+    print(f"{name:16s} lost frames    | {lost['frames']} above {LOST_MM:g} mm: the chest twisted from the pelvis on "
+          f"{lost['twisted']}, an arm's root across the chest's midline on {lost['arms_across']}, a leg's across the "
+          f"pelvis's on {lost['legs_across']}, an ankle {LOST_END_MM:g} mm off on {lost['ankle']}, a wrist on "
+          f"{lost['wrist']}, none of these on {lost['other']}", flush=True)
+    row |= {"lost": lost}
     q_smooth = smooth(seq.model, q, FPS, SMOOTH_HZ)
     err_smooth = joint_errors(seq.model, q_smooth, truth)
     print(f"{name:16s} smoothed {SMOOTH_HZ:g} Hz  | {summary(err_smooth, flex_rmse(q_smooth))}", flush=True)

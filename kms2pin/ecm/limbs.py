@@ -157,6 +157,21 @@ def sides(robot: Robot, hinged: Collection[int] = ()) -> Sides | None:
     return Sides(np.array(body), np.array(anchor), np.array(n), np.array(sign))
 
 
+def hinged_bodies(robot: Robot) -> list[int]:
+    """The bodies on a spherical joint whose one movable joint below is a hinge (an upper
+    arm above its elbow, a thigh above its knee): the roots of twin limbs :func:`sides` takes."""
+    kinds = {j.name: j.kind for j in robot.joints}
+    out = []
+    for spec in robot.system.joints:
+        if kinds.get(spec.name) != "spherical" or spec.child is None:
+            continue
+        below = [kinds[c.name] for c in robot.system.joints
+                 if c.parent == spec.child and kinds.get(c.name) in ("spherical", "revolute")]
+        if below == ["revolute"]:
+            out.append(robot.index(spec.child))
+    return out
+
+
 def movable(robot: Robot, jid: int) -> bool:
     """Whether Pinocchio joint ``jid`` is one a limb moves: one coordinate (revolute,
     prismatic) or a spherical joint (a quaternion), not the free root."""

@@ -224,6 +224,11 @@ class PriorOptions(_Group):
     spine_free: float = option(0.0, "the twist (degrees either way of rest, each spine joint) that spine_twist "
                                     "leaves free (0: a pull towards rest)",
                                range=Range(0.0, 180.0), cli=Cli("--spine-free", "DEG"))
+    midline: float = option(0.0, "keep each arm's root (a collar, an upper arm) on its side of the body it hangs "
+                                 "from: a spring that pushes it out once its centre comes within half its offset "
+                                 "at rest of that body's midline (the legs, which hold the feet at the first pose, "
+                                 "are left out; 0: off)",
+                            range=Range(0.0), cli=Cli("--midline", "K"))
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "
                                 "'up'; the feet: the bodies lowest at q0; 0: off)",

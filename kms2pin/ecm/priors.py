@@ -16,9 +16,15 @@ import numpy as np
 import pinocchio as pin
 
 from ..native import kernels
-from .limbs import twin_name
+from .limbs import hinged_bodies, sides, twin_name
 
-__all__ = ["DepthPrior", "GroundPrior", "RestPrior", "TwistPrior", "UprightPrior", "feet"]
+__all__ = ["MIDLINE_MARGIN", "DepthPrior", "GroundPrior", "MidlinePrior", "RestPrior", "TwistPrior", "UprightPrior",
+           "feet"]
+
+#: the share of its offset from the midline at rest that an arm's root keeps before the
+#: midline prior pushes it out (a real walker's collars and upper arms keep 0.8-0.9 of
+#: theirs; its thighs come to 0.17, so the legs are left out)
+MIDLINE_MARGIN = 0.5
 
 
 @dataclass(frozen=True)
@@ -141,6 +147,91 @@ class GroundPrior:
             A += k * np.outer(grad, grad)
             g += k * r * grad
             energy += 0.5 * k * r * r
+        return energy
+
+
+@dataclass(frozen=True)
+class MidlinePrior:
+    """Twin arms keep to their side of the body: the root of each (a collar and an upper
+    arm: :func:`~kms2pin.ecm.limbs.sides`, of the limbs that hold none of the feet) keeps
+    its centre at least :data:`MIDLINE_MARGIN` of its offset at rest from the sagittal
+    plane of the body it hangs from (the chest).  Two views of a walker cannot always tell
+    a collar pushed through the chest, and once one is across, ECM carries both arms over
+    (docs/design/tracking-history.md).  A walker's thighs come close to the pelvis's
+    midline, and a step may cross it: the legs are left out.
+
+    With ``s_k = ±n_aᵀ (t_b - t_a)`` body b's signed offset (n_a the plane's normal in the
+    anchor a's axes, turned with it; t the bodies' centres, world; the sign its side at
+    rest) and ``h_k = s_k - MIDLINE_MARGIN s_k(rest)``, energy ½ k Σ_k min(h_k, 0)²: one-sided
+    springs, off while every root keeps past its margin.  With J a body's joint Jacobian
+    (world axes at its joint's origin o) and r = t - o, dt = J_v + J_ω × r (so
+    nᵀ dt = nᵀ J_v + (r × n)ᵀ J_ω) and dn_a = J_ω,a × n_a, so ∇s = ±(n_aᵀ J_v,b + (r_b × n_a)ᵀ J_ω,b - n_aᵀ J_v,a - (r_a × n_a)ᵀ J_ω,a
+    + (n_a × (t_b - t_a))ᵀ J_ω,a); each active root adds k ∇h ∇hᵀ and k h ∇h to the
+    Newton system (§2.3.3, eq. 2.28).  Stiffness: ``weight`` times the root translation's
+    mean stiffness, as the ground prior's."""
+
+    weight: float
+    model: pin.Model
+    joints: np.ndarray  # (k, 2) the Pinocchio joints of body b and anchor a
+    offsets: tuple[pin.SE3, ...]  # (2k,) each one's centre frame in its joint's frame, b then a
+    normal: np.ndarray  # (k, 3) the plane's normal in the anchor's axes, times the side at rest
+    least: np.ndarray  # (k,) the offset each keeps, MIDLINE_MARGIN of its offset at rest
+
+    @classmethod
+    def of(cls, weight: float, robot, feet: Sequence[int] = ()) -> MidlinePrior | None:
+        """The prior on the roots of ``robot``'s twin limbs that hold none of the bodies
+        ``feet`` (indices; the arms), None if it has none."""
+        sd = sides(robot, hinged_bodies(robot))
+        m = robot.model
+        joint_of = [int(m.frames[f].parentJoint) for f in robot.frame_ids]
+        foot_joints = {joint_of[i] for i in feet}
+        rows = [] if sd is None else [k for k in range(len(sd.body))
+                                      if not foot_joints & set(m.subtrees[joint_of[int(sd.body[k])]])]
+        if not rows:
+            return None
+        sd = type(sd)(sd.body[rows], sd.anchor[rows], sd.normal[rows], sd.sign[rows])
+        frames = [m.frames[robot.frame_ids[int(i)]] for pair in zip(sd.body, sd.anchor) for i in pair]
+        normal = sd.normal * sd.sign[:, None]
+        poses = robot.body_poses(robot.q_rest)
+        rest = np.array([float((poses[a].rotation @ n) @ (poses[b].translation - poses[a].translation))
+                         for b, a, n in zip(sd.body, sd.anchor, normal)])
+        joints = np.array([int(f.parentJoint) for f in frames]).reshape(-1, 2)
+        return cls(weight, robot.model, joints, tuple(pin.SE3(f.placement) for f in frames), normal,
+                   MIDLINE_MARGIN * rest)
+
+    def stiffness(self, A: np.ndarray) -> float:
+        return self.weight * float(np.trace(A[:3, :3])) / 3.0
+
+    def clearances(self, data: pin.Data) -> np.ndarray:
+        """Each root's signed offset from its anchor's midline less the one it keeps
+        (``h``; negative: pushed out) after a forward pass into ``data``."""
+        return np.array([self._offset(data, k)[0] for k in range(len(self.least))])
+
+    def _offset(self, data: pin.Data, k: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """Root k's ``h``, its anchor's normal (world), and both centres (world)."""
+        jb, ja = (int(j) for j in self.joints[k])
+        tb = (data.oMi[jb] * self.offsets[2 * k]).translation
+        Pa = data.oMi[ja] * self.offsets[2 * k + 1]
+        n = Pa.rotation @ self.normal[k]
+        return float(n @ (tb - Pa.translation)) - float(self.least[k]), n, tb, Pa.translation
+
+    def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
+        """As the protocol; ``data`` must hold the joint Jacobians at ``q``
+        (``pin.computeJointJacobians``, as the static update computes them)."""
+        energy = 0.0
+        for row in range(len(self.least)):
+            h, n, tb, ta = self._offset(data, row)
+            if h >= 0.0:
+                continue
+            jb, ja = (int(j) for j in self.joints[row])
+            Jb = pin.getJointJacobian(self.model, data, jb, pin.LOCAL_WORLD_ALIGNED)
+            Ja = pin.getJointJacobian(self.model, data, ja, pin.LOCAL_WORLD_ALIGNED)
+            rb, ra = tb - data.oMi[jb].translation, ta - data.oMi[ja].translation
+            grad = (n @ Jb[:3] + np.cross(rb, n) @ Jb[3:] - n @ Ja[:3] - np.cross(ra, n) @ Ja[3:]
+                    + np.cross(n, tb - ta) @ Ja[3:])
+            A += k * np.outer(grad, grad)
+            g += k * h * grad
+            energy += 0.5 * k * h * h
         return energy
 
 

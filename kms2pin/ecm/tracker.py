@@ -36,7 +36,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
-from .priors import GroundPrior, RestPrior, TwistPrior, UprightPrior, feet
+from .priors import GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
 from .silhouette import IncrementalFit, visible_bodies
 from .sizes import BodySizes
@@ -91,6 +91,9 @@ class Tracker:
                   else None,
                   TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)
         priors += [p for p in twists if p is not None]  # None: no joint to hold
+        midline = MidlinePrior.of(pri.midline, robot, feet(robot, self.q, self.sizes.inner, pri.up)[0]) \
+            if free and pri.midline > 0 else None
+        priors += [midline] if midline is not None else []
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)

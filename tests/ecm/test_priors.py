@@ -1,4 +1,4 @@
-"""Priors of the static update: depth, upright, rest, twist, ground."""
+"""Priors of the static update: depth, upright, rest, twist, ground, midline."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.mstep import BodyFit
-from kms2pin.ecm.priors import DepthPrior, GroundPrior, RestPrior, UprightPrior
+from kms2pin.ecm.priors import MIDLINE_MARGIN, DepthPrior, GroundPrior, MidlinePrior, RestPrior, UprightPrior, feet
 from kms2pin.ecm.springs import full_update
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -466,3 +466,113 @@ def test_rest_prior_towards_a_t_pose_pulls_a_seen_walker_off_the_truth():
         out[which] = (centre_error(robot, qe, q), fit)
     assert out["spec"][0] > 2.0 and out["start"][0] < 1.0, out
     assert out["start"][1] > out["spec"][1] + 0.05, out
+
+
+def _midline_offsets(robot, q):
+    """The upper arms' and thighs' centres' offsets from the sagittal plane of the torso
+    and pelvis (world, from the body poses: the plane's normal is the left/right axis of
+    the spec's rest pose, turned with the torso or pelvis), positive on their own side."""
+    poses, rest = robot.body_poses(q), robot.body_poses(robot.q_rest)
+    out = []
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        for body, anchor in ((f"{side}UpperArm", "torso"), (f"{side}Thigh", "pelvis")):
+            a, b = robot.index(anchor), robot.index(body)
+            lateral = rest[robot.index(f"left{body[len(side):]}")].translation - rest[robot.index(f"right{body[len(side):]}")].translation
+            n = poses[a].rotation @ (rest[a].rotation.T @ lateral) / np.linalg.norm(lateral)
+            out.append(sign * float(n @ (poses[b].translation - poses[a].translation)))
+    return np.array(out)
+
+
+def _arm_swung(human, angle):
+    """The rest pose with the left upper arm swung by ``angle`` (rad) about the shoulder's
+    front-back axis: up and in, towards the torso's midline (at 1.5 rad its centre is
+    3 cm from it, against 21.5 cm at rest)."""
+    arm = next(j for j in human.joints if j.name == "leftUpperArm_shoulder")
+    return _turned(human, arm, [0.0, 0.0, angle])
+
+
+def test_midline_prior_is_the_gradient_of_its_energy_and_off_on_its_own_side():
+    """The midline prior on the human (its twin limbs' roots: the upper arms on the
+    torso, the thighs on the pelvis): its offsets are those of the body poses (the
+    sagittal plane turned with the anchor); off (no energy, no terms) at rest and while
+    every root keeps more than MIDLINE_MARGIN of its rest offset; past that, energy
+    k/2 sum min(h, 0)^2 with h = offset - MIDLINE_MARGIN * rest offset, its gradient
+    against finite differences (pin.integrate), its Gauss-Newton matrix positive
+    semi-definite.  A model without twins has none."""
+    human = load(DIR / "human.kms", root="free")
+    model, data, nv = human.model, human.data, human.model.nv
+    prior = MidlinePrior.of(1.0, human)
+    rest = _midline_offsets(human, human.q_rest)
+    assert (rest > 0.03).all()
+    np.testing.assert_allclose(np.sort(prior.least), np.sort(MIDLINE_MARGIN * rest), rtol=1e-9)
+    k = 0.6
+
+    def energy(q):
+        h = _midline_offsets(human, q) - MIDLINE_MARGIN * rest
+        return 0.5 * k * float(np.sum(np.minimum(h, 0.0) ** 2)), h
+
+    for q, crossed in ((human.q_rest, False), (_arm_swung(human, 0.3), None), (_arm_swung(human, 1.5), True)):
+        e, h = energy(q)
+        if crossed is not None:
+            assert (h.min() < 0) == crossed
+        A, g = np.zeros((nv, nv)), np.zeros(nv)
+        pin.computeJointJacobians(model, data, q)
+        assert prior.add(A, g, q, data, k) == pytest.approx(e, rel=1e-12, abs=1e-300)
+        if e == 0.0:
+            assert not A.any() and not g.any()
+            continue
+        eps = 1e-6
+        fd = [(energy(pin.integrate(model, q, eps * v))[0] - energy(pin.integrate(model, q, -eps * v))[0]) / (2 * eps)
+              for v in np.eye(nv)]
+        np.testing.assert_allclose(g, fd, atol=1e-8)
+        assert np.abs(g).max() > 1e-3
+        assert np.linalg.eigvalsh(A).min() > -1e-12 and np.trace(A) > 0
+    # a random pose with the legs and arms anywhere: the gradient still that of the energy
+    q = human.random_configuration(np.random.default_rng(4), 90)
+    _assert_gradient(prior, human, q, k)
+    assert MidlinePrior.of(1.0, load(DIR / "puma600.kms")) is None
+    # given the feet (as the tracker finds them at its first pose), the legs are left out
+    inner = np.array([human.inner(b) for b in human.bodies])
+    arms = MidlinePrior.of(1.0, human, feet(human, human.q_rest, inner, (0.0, 1.0, 0.0))[0])
+    assert sorted(human.model.names[int(j)] for j in arms.joints[:, 0]) == ["leftUpperArm_shoulder",
+                                                                            "rightUpperArm_shoulder"]
+
+
+def test_midline_prior_pushes_an_arm_swung_to_the_chest_back_out():
+    """The static update (eq. 2.28) with the bodies' springs holding a pose whose left
+    upper arm's centre is swung to within a sixth of its rest offset of the torso's
+    midline: the springs alone leave it there, with the prior it ends further out, past
+    the margin's pull towards the springs' pose; a pose with every root out past the
+    margin stays as it is."""
+    human = load(DIR / "human.kms", root="free")
+    inner = np.array([human.inner(b) for b in human.bodies])
+    rng = np.random.default_rng(3)
+    H = [(lambda B: B @ B.T + 6 * np.eye(6))(rng.normal(size=(6, 6))) for _ in human.bodies]
+    prior = MidlinePrior.of(10.0, human)  # these springs are stiff: 1 pushes 2 mm
+
+    def update(q, terms):
+        fits = [BodyFit(P, h.copy(), 0.0, 0.0) for P, h in zip(human.body_poses(q), H)]
+        return full_update(human, q.copy(), fits, inner, 0.0, 20, terms)
+
+    ok = _arm_swung(human, 0.3)
+    np.testing.assert_allclose(update(ok, [prior]), ok, atol=1e-9)
+    near = _arm_swung(human, 1.5)
+    before = _midline_offsets(human, near)[0]
+    assert before < MIDLINE_MARGIN * _midline_offsets(human, human.q_rest)[0] / 3
+    held = _midline_offsets(human, update(near, []))[0]
+    pushed = _midline_offsets(human, update(near, [prior]))[0]
+    assert held == pytest.approx(before, abs=1e-6)  # the springs alone keep it there
+    assert pushed > held + 0.04
+
+
+def test_tracker_takes_the_midline_prior_as_an_option():
+    """``midline``: the tracker adds the prior on the arms of a free root with twin limbs
+    (the legs, which hold the feet at the first pose, left out); none by default or with
+    a fixed root."""
+    human = load(DIR / "human.kms", root="free")
+    cams = _cams(human)
+    (prior,) = [p for p in Tracker(human, cams, midline=0.5).ecm.priors if isinstance(p, MidlinePrior)]
+    assert prior.weight == 0.5 and len(prior.least) == 2
+    assert not any(isinstance(p, MidlinePrior) for p in Tracker(human, cams).ecm.priors)
+    fixed = load(DIR / "human.kms")
+    assert not any(isinstance(p, MidlinePrior) for p in Tracker(fixed, _cams(fixed), midline=0.5).ecm.priors)
