@@ -226,8 +226,8 @@ class PriorOptions(_Group):
                                range=Range(0.0, 180.0), cli=Cli("--spine-free", "DEG"))
     midline: float = option(0.0, "keep each arm's root (a collar, an upper arm) on its side of the body it hangs "
                                  "from: a spring that pushes it out once its centre comes within half its offset "
-                                 "at rest of that body's midline (the legs, which hold the feet at the first pose, "
-                                 "are left out; 0: off)",
+                                 "at rest of that body's midline (the legs, the limbs that hold the feet at the "
+                                 "first pose, are left out; 0: off)",
                             range=Range(0.0), cli=Cli("--midline", "K"))
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "

@@ -21,10 +21,12 @@ from .limbs import hinged_bodies, sides, twin_name
 __all__ = ["MIDLINE_MARGIN", "DepthPrior", "GroundPrior", "MidlinePrior", "RestPrior", "TwistPrior", "UprightPrior",
            "feet"]
 
-#: the share of its offset from the midline at rest that an arm's root keeps before the
-#: midline prior pushes it out (a real walker's collars and upper arms keep 0.8-0.9 of
-#: theirs; its thighs come to 0.17, so the legs are left out)
-MIDLINE_MARGIN = 0.5
+#: the share of its offset from the midline at rest that a twin limb's root keeps before the
+#: midline prior pushes it out, for the arms and for the legs (None: that kind left out): a
+#: real walker's collars and upper arms keep 0.8-0.9 of theirs.  Its thighs come to 0.17, and
+#: the legs at 0.1 held the kick on more runs but lost others: left out by default
+#: (docs/design/tracking-history.md)
+MIDLINE_MARGIN: dict[str, float | None] = {"arms": 0.5, "legs": None}
 
 
 @dataclass(frozen=True)
@@ -152,52 +154,57 @@ class GroundPrior:
 
 @dataclass(frozen=True)
 class MidlinePrior:
-    """Twin arms keep to their side of the body: the root of each (a collar and an upper
-    arm: :func:`~kms2pin.ecm.limbs.sides`, of the limbs that hold none of the feet) keeps
-    its centre at least :data:`MIDLINE_MARGIN` of its offset at rest from the sagittal
-    plane of the body it hangs from (the chest).  Two views of a walker cannot always tell
-    a collar pushed through the chest, and once one is across, ECM carries both arms over
-    (docs/design/tracking-history.md).  A walker's thighs come close to the pelvis's
-    midline, and a step may cross it: the legs are left out.
+    """Twin limbs keep to their side of the body: the root of each (a collar and an upper
+    arm, a thigh: :func:`~kms2pin.ecm.limbs.sides`) keeps its centre at least a share
+    (:data:`MIDLINE_MARGIN`, the arms' or the legs') of its offset at rest from the
+    sagittal plane of the body it hangs from (the chest, the pelvis).  Two views of a
+    walker do not always tell a collar pushed through the chest, or a thigh pulled onto
+    its twin's image in a kick, and once a limb is across, ECM carries it over
+    (docs/design/tracking-history.md).  The legs are the limbs that hold one of ``feet``
+    (by default left out).
 
     With ``s_k = ±n_aᵀ (t_b - t_a)`` body b's signed offset (n_a the plane's normal in the
     anchor a's axes, turned with it; t the bodies' centres, world; the sign its side at
-    rest) and ``h_k = s_k - MIDLINE_MARGIN s_k(rest)``, energy ½ k Σ_k min(h_k, 0)²: one-sided
-    springs, off while every root keeps past its margin.  With J a body's joint Jacobian
-    (world axes at its joint's origin o) and r = t - o, dt = J_v + J_ω × r (so
-    nᵀ dt = nᵀ J_v + (r × n)ᵀ J_ω) and dn_a = J_ω,a × n_a, so ∇s = ±(n_aᵀ J_v,b + (r_b × n_a)ᵀ J_ω,b - n_aᵀ J_v,a - (r_a × n_a)ᵀ J_ω,a
-    + (n_a × (t_b - t_a))ᵀ J_ω,a); each active root adds k ∇h ∇hᵀ and k h ∇h to the
-    Newton system (§2.3.3, eq. 2.28).  Stiffness: ``weight`` times the root translation's
-    mean stiffness, as the ground prior's."""
+    rest) and ``h_k = s_k - m_k s_k(rest)`` (m_k the margin), energy ½ k Σ_k min(h_k, 0)²:
+    one-sided springs, off while every root keeps past its margin.  With J a body's joint
+    Jacobian (world axes at its joint's origin o) and r = t - o, dt = J_v + J_ω × r (so
+    nᵀ dt = nᵀ J_v + (r × n)ᵀ J_ω) and dn_a = J_ω,a × n_a, so ∇s = ±(n_aᵀ J_v,b
+    + (r_b × n_a)ᵀ J_ω,b - n_aᵀ J_v,a - (r_a × n_a)ᵀ J_ω,a + (n_a × (t_b - t_a))ᵀ J_ω,a);
+    each active root adds k ∇h ∇hᵀ and k h ∇h to the Newton system (§2.3.3, eq. 2.28).
+    Stiffness: ``weight`` times the root translation's mean stiffness, as the ground prior's."""
 
     weight: float
     model: pin.Model
     joints: np.ndarray  # (k, 2) the Pinocchio joints of body b and anchor a
     offsets: tuple[pin.SE3, ...]  # (2k,) each one's centre frame in its joint's frame, b then a
     normal: np.ndarray  # (k, 3) the plane's normal in the anchor's axes, times the side at rest
-    least: np.ndarray  # (k,) the offset each keeps, MIDLINE_MARGIN of its offset at rest
+    least: np.ndarray  # (k,) the offset each keeps: its margin times its offset at rest
 
     @classmethod
-    def of(cls, weight: float, robot, feet: Sequence[int] = ()) -> MidlinePrior | None:
-        """The prior on the roots of ``robot``'s twin limbs that hold none of the bodies
-        ``feet`` (indices; the arms), None if it has none."""
+    def of(cls, weight: float, robot, feet: Sequence[int] = (),
+           margins: dict[str, float | None] | None = None) -> MidlinePrior | None:
+        """The prior on the roots of ``robot``'s twin limbs, the legs those that hold one
+        of the bodies ``feet`` (indices), each kind with its margin (``margins``, by default
+        :data:`MIDLINE_MARGIN`; None leaves it out); None if no root is left."""
+        margins = MIDLINE_MARGIN if margins is None else margins
         sd = sides(robot, hinged_bodies(robot))
+        if sd is None:
+            return None
         m = robot.model
         joint_of = [int(m.frames[f].parentJoint) for f in robot.frame_ids]
         foot_joints = {joint_of[i] for i in feet}
-        rows = [] if sd is None else [k for k in range(len(sd.body))
-                                      if not foot_joints & set(m.subtrees[joint_of[int(sd.body[k])]])]
+        share = [margins["legs" if foot_joints & set(m.subtrees[joint_of[int(b)]]) else "arms"] for b in sd.body]
+        rows = [k for k, x in enumerate(share) if x is not None]
         if not rows:
             return None
-        sd = type(sd)(sd.body[rows], sd.anchor[rows], sd.normal[rows], sd.sign[rows])
-        frames = [m.frames[robot.frame_ids[int(i)]] for pair in zip(sd.body, sd.anchor) for i in pair]
-        normal = sd.normal * sd.sign[:, None]
+        body, anchor, normal = sd.body[rows], sd.anchor[rows], sd.normal[rows] * sd.sign[rows, None]
+        frames = [m.frames[robot.frame_ids[int(i)]] for pair in zip(body, anchor) for i in pair]
         poses = robot.body_poses(robot.q_rest)
         rest = np.array([float((poses[a].rotation @ n) @ (poses[b].translation - poses[a].translation))
-                         for b, a, n in zip(sd.body, sd.anchor, normal)])
+                         for b, a, n in zip(body, anchor, normal)])
         joints = np.array([int(f.parentJoint) for f in frames]).reshape(-1, 2)
-        return cls(weight, robot.model, joints, tuple(pin.SE3(f.placement) for f in frames), normal,
-                   MIDLINE_MARGIN * rest)
+        return cls(weight, m, joints, tuple(pin.SE3(f.placement) for f in frames), normal,
+                   np.array([share[k] for k in rows]) * rest)
 
     def stiffness(self, A: np.ndarray) -> float:
         return self.weight * float(np.trace(A[:3, :3])) / 3.0

@@ -504,11 +504,12 @@ def test_midline_prior_is_the_gradient_of_its_energy_and_off_on_its_own_side():
     prior = MidlinePrior.of(1.0, human)
     rest = _midline_offsets(human, human.q_rest)
     assert (rest > 0.03).all()
-    np.testing.assert_allclose(np.sort(prior.least), np.sort(MIDLINE_MARGIN * rest), rtol=1e-9)
+    # without feet given every root is taken for an arm's
+    np.testing.assert_allclose(np.sort(prior.least), np.sort(MIDLINE_MARGIN["arms"] * rest), rtol=1e-9)
     k = 0.6
 
     def energy(q):
-        h = _midline_offsets(human, q) - MIDLINE_MARGIN * rest
+        h = _midline_offsets(human, q) - MIDLINE_MARGIN["arms"] * rest
         return 0.5 * k * float(np.sum(np.minimum(h, 0.0) ** 2)), h
 
     for q, crossed in ((human.q_rest, False), (_arm_swung(human, 0.3), None), (_arm_swung(human, 1.5), True)):
@@ -531,11 +532,24 @@ def test_midline_prior_is_the_gradient_of_its_energy_and_off_on_its_own_side():
     q = human.random_configuration(np.random.default_rng(4), 90)
     _assert_gradient(prior, human, q, k)
     assert MidlinePrior.of(1.0, load(DIR / "puma600.kms")) is None
-    # given the feet (as the tracker finds them at its first pose), the legs are left out
+    # given the feet (as the tracker finds them at its first pose), the thighs keep the legs'
+    # margin; a kind whose margin is None (by default the legs) is left out
     inner = np.array([human.inner(b) for b in human.bodies])
-    arms = MidlinePrior.of(1.0, human, feet(human, human.q_rest, inner, (0.0, 1.0, 0.0))[0])
+    on = feet(human, human.q_rest, inner, (0.0, 1.0, 0.0))[0]
+    shares = {"arms": 0.5, "legs": 0.1}
+    both = MidlinePrior.of(1.0, human, on, shares)
+    names = [human.model.names[int(j)] for j in both.joints[:, 0]]
+    kept = dict(zip(names, both.least))
+    offset = dict(zip(["leftUpperArm_shoulder", "leftThigh_hip", "rightUpperArm_shoulder", "rightThigh_hip"], rest))
+    assert sorted(kept) == sorted(offset)
+    for name, least in kept.items():
+        share = shares["legs" if "Thigh" in name else "arms"]
+        assert least == pytest.approx(share * offset[name], rel=1e-9)
+    arms = MidlinePrior.of(1.0, human, on)
+    assert MIDLINE_MARGIN["legs"] is None
     assert sorted(human.model.names[int(j)] for j in arms.joints[:, 0]) == ["leftUpperArm_shoulder",
                                                                             "rightUpperArm_shoulder"]
+    assert MidlinePrior.of(1.0, human, on, {"arms": None, "legs": None}) is None
 
 
 def test_midline_prior_pushes_an_arm_swung_to_the_chest_back_out():
@@ -558,7 +572,7 @@ def test_midline_prior_pushes_an_arm_swung_to_the_chest_back_out():
     np.testing.assert_allclose(update(ok, [prior]), ok, atol=1e-9)
     near = _arm_swung(human, 1.5)
     before = _midline_offsets(human, near)[0]
-    assert before < MIDLINE_MARGIN * _midline_offsets(human, human.q_rest)[0] / 3
+    assert before < MIDLINE_MARGIN["arms"] * _midline_offsets(human, human.q_rest)[0] / 3
     held = _midline_offsets(human, update(near, []))[0]
     pushed = _midline_offsets(human, update(near, [prior]))[0]
     assert held == pytest.approx(before, abs=1e-6)  # the springs alone keep it there
@@ -567,12 +581,15 @@ def test_midline_prior_pushes_an_arm_swung_to_the_chest_back_out():
 
 def test_tracker_takes_the_midline_prior_as_an_option():
     """``midline``: the tracker adds the prior on the arms of a free root with twin limbs
-    (the legs, which hold the feet at the first pose, left out); none by default or with
-    a fixed root."""
+    (the legs, the limbs that hold the feet at the first pose, left out); none by default
+    or with a fixed root."""
     human = load(DIR / "human.kms", root="free")
     cams = _cams(human)
     (prior,) = [p for p in Tracker(human, cams, midline=0.5).ecm.priors if isinstance(p, MidlinePrior)]
     assert prior.weight == 0.5 and len(prior.least) == 2
+    whole = MidlinePrior.of(1.0, human, (), {"arms": 1.0, "legs": 1.0})
+    rest = {int(j): x for j, x in zip(whole.joints[:, 0], whole.least)}  # the offsets at rest, by joint
+    np.testing.assert_allclose(prior.least, [MIDLINE_MARGIN["arms"] * rest[int(j)] for j in prior.joints[:, 0]])
     assert not any(isinstance(p, MidlinePrior) for p in Tracker(human, cams).ecm.priors)
     fixed = load(DIR / "human.kms")
     assert not any(isinstance(p, MidlinePrior) for p in Tracker(fixed, _cams(fixed), midline=0.5).ecm.priors)
