@@ -325,6 +325,9 @@ GROUPS: dict[str, type] = {
 #: every option's flat name -> its group's attribute name
 OPTION_GROUP: dict[str, str] = {f.name: g for g, cls in GROUPS.items() for f in dataclasses.fields(cls)}
 
+#: the priors' weights: each a spring of the 'full' static update only
+PRIOR_WEIGHTS = ("depth_prior", "upright", "rest_prior", "twist_prior", "spine_twist", "midline", "ground")
+
 
 @dataclass(frozen=True)
 class TrackerOptions:
@@ -347,6 +350,10 @@ class TrackerOptions:
         for name, cls in GROUPS.items():
             if not isinstance(getattr(self, name), cls):
                 raise OptionError(f"{name} must be a {cls.__name__}, not {getattr(self, name)!r}")
+        on = [f"{k}={getattr(self.priors, k)!r}" for k in PRIOR_WEIGHTS if getattr(self.priors, k) > 0]
+        if self.springs.static == "diagonal" and on:
+            raise OptionError(f"static='diagonal' (the thesis's diagonal springs) has no terms for the priors, "
+                              f"but {', '.join(on)} is set: use static='full' (the default) or turn them off")
 
     def replace(self, **overrides: Any) -> TrackerOptions:
         """These options with some changed, by flat name (``upright=0.1``) or whole group

@@ -9,8 +9,9 @@ three are its local linear velocity, the next three its local angular velocity).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 import pinocchio as pin
@@ -26,7 +27,7 @@ __all__ = ["MIDLINE_MARGIN", "DepthPrior", "GroundPrior", "MidlinePrior", "RestP
 #: real walker's collars and upper arms keep 0.8-0.9 of theirs.  Its thighs come to 0.17, and
 #: the legs at 0.1 held the kick on more runs but lost others: left out by default
 #: (docs/design/tracking-history.md)
-MIDLINE_MARGIN: dict[str, float | None] = {"arms": 0.5, "legs": None}
+MIDLINE_MARGIN: Mapping[str, float | None] = MappingProxyType({"arms": 0.5, "legs": None})
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,7 @@ class MidlinePrior:
 
     @classmethod
     def of(cls, weight: float, robot, feet: Sequence[int] = (),
-           margins: dict[str, float | None] | None = None) -> MidlinePrior | None:
+           margins: Mapping[str, float | None] | None = None) -> MidlinePrior | None:
         """The prior on the roots of ``robot``'s twin limbs, the legs those that hold one
         of the bodies ``feet`` (indices), each kind with its margin (``margins``, by default
         :data:`MIDLINE_MARGIN`; None leaves it out); None if no root is left."""
@@ -193,7 +194,13 @@ class MidlinePrior:
         m = robot.model
         joint_of = [int(m.frames[f].parentJoint) for f in robot.frame_ids]
         foot_joints = {joint_of[i] for i in feet}
-        share = [margins["legs" if foot_joints & set(m.subtrees[joint_of[int(b)]]) else "arms"] for b in sd.body]
+        # a leg's root is any root on the anchor of one that holds a foot (a thigh raised at
+        # the first pose is still a leg: its twin, standing, names the pelvis)
+        legs = {int(a) for b, a in zip(sd.body, sd.anchor) if foot_joints & set(m.subtrees[joint_of[int(b)]])}
+        for kind, x in margins.items():
+            if x is not None and not 0.0 <= x <= 1.0:
+                raise ValueError(f"the midline margin of the {kind} must be in [0, 1] or None, not {x!r}")
+        share = [margins.get("legs" if int(a) in legs else "arms") for a in sd.anchor]
         rows = [k for k, x in enumerate(share) if x is not None]
         if not rows:
             return None

@@ -48,6 +48,9 @@ from ._tracking import (
         (dict(hypothesis_smoothing=0.0), "hypothesis_smoothing must be > 0.0 and <= 1.0, not 0.0"),
         (dict(upright=-1.0), "upright must be >= 0.0, not -1.0"),
         (dict(mirror_hypothesis=True, tol_px=0.0), "tol_px must be > 0.0 or None, not 0.0"),
+        (dict(static="diagonal", upright=0.1, midline=1.0),
+         "static='diagonal' (the thesis's diagonal springs) has no terms for the priors, but upright=0.1, "
+         "midline=1.0 is set: use static='full' (the default) or turn them off"),
     ],
 )
 def test_an_option_out_of_range_is_an_option_error_naming_it(options, message):

@@ -215,9 +215,15 @@ def _turned(robot, joint, rotvec):
 
 
 def _energy_of(prior, robot, k):
-    """``q -> the prior's energy at q`` (its Newton terms thrown away)."""
+    """``q -> the prior's energy at q`` (its Newton terms thrown away), after the forward
+    pass and Jacobians at q that the static update makes (a prior may read them)."""
     nv = robot.model.nv
-    return lambda q: prior.add(np.zeros((nv, nv)), np.zeros(nv), q, robot.data, k)
+
+    def energy(q):
+        pin.computeJointJacobians(robot.model, robot.data, q)
+        return prior.add(np.zeros((nv, nv)), np.zeros(nv), q, robot.data, k)
+
+    return energy
 
 
 def _assert_gradient(prior, robot, q, k):
@@ -225,6 +231,7 @@ def _assert_gradient(prior, robot, q, k):
     pin.integrate); returns the gradient."""
     nv, energy, eps = robot.model.nv, _energy_of(prior, robot, k), 1e-6
     g = np.zeros(nv)
+    pin.computeJointJacobians(robot.model, robot.data, q)
     prior.add(np.zeros((nv, nv)), g, q, robot.data, k)
     fd = [(energy(pin.integrate(robot.model, q, eps * e)) - energy(pin.integrate(robot.model, q, -eps * e))) / (2 * eps)
           for e in np.eye(nv)]
@@ -530,7 +537,8 @@ def test_midline_prior_is_the_gradient_of_its_energy_and_off_on_its_own_side():
         assert np.linalg.eigvalsh(A).min() > -1e-12 and np.trace(A) > 0
     # a random pose with the legs and arms anywhere: the gradient still that of the energy
     q = human.random_configuration(np.random.default_rng(4), 90)
-    _assert_gradient(prior, human, q, k)
+    assert _energy_of(prior, human, k)(q) > 0.0  # a root pushed: the check below is not of zeros
+    assert np.abs(_assert_gradient(prior, human, q, k)).max() > 1e-3
     assert MidlinePrior.of(1.0, load(DIR / "puma600.kms")) is None
     # given the feet (as the tracker finds them at its first pose), the thighs keep the legs'
     # margin; a kind whose margin is None (by default the legs) is left out
@@ -550,6 +558,17 @@ def test_midline_prior_is_the_gradient_of_its_energy_and_off_on_its_own_side():
     assert sorted(human.model.names[int(j)] for j in arms.joints[:, 0]) == ["leftUpperArm_shoulder",
                                                                             "rightUpperArm_shoulder"]
     assert MidlinePrior.of(1.0, human, on, {"arms": None, "legs": None}) is None
+    assert MidlinePrior.of(1.0, human, on, {"arms": 0.5}).least.size == 2  # a kind not named: left out
+    # a first pose with one foot off the floor: that thigh is a leg still (its twin's pelvis)
+    one_foot = [i for i in on if "right" in human.bodies[i]]
+    assert one_foot and len(one_foot) < len(on)
+    legs = MidlinePrior.of(1.0, human, one_foot, {"arms": None, "legs": 0.1})
+    assert sorted(human.model.names[int(j)] for j in legs.joints[:, 0]) == ["leftThigh_hip", "rightThigh_hip"]
+    for bad in (1.5, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="midline margin of the legs"):
+            MidlinePrior.of(1.0, human, on, {"arms": 0.5, "legs": bad})
+    with pytest.raises(TypeError):
+        MIDLINE_MARGIN["arms"] = 0.2  # the default cannot be changed by a caller
 
 
 def test_midline_prior_pushes_an_arm_swung_to_the_chest_back_out():
