@@ -66,6 +66,8 @@ def add_tracker_arguments(p: argparse.ArgumentParser) -> None:
         elif f.metadata.get("choices") is not None:
             p.add_argument(cli.flag, dest=cli_dest(f), choices=f.metadata["choices"], default=None,
                            help=help_text + _default_words(f))
+        elif isinstance(f.default, str):
+            p.add_argument(cli.flag, dest=cli_dest(f), default=None, metavar=cli.metavar, help=help_text)
         elif isinstance(f.default, tuple):
             p.add_argument(cli.flag, dest=cli_dest(f), type=float, nargs=len(f.default), default=None,
                            metavar=tuple("XYZW"[: len(f.default)]),

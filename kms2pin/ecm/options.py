@@ -270,6 +270,13 @@ class HypothesisOptions(_Group):
         range=Range(1, whole=True, none_ok=True))
     binned_hypotheses: bool = option(False, "track the alternatives on masks binned 2x2 (faster, less accurate)",
                                      cli=Cli("--binned-hypotheses"))
+    second_track: str = option(
+        "", "track the frames a second time beside, with these options changed (NAME=VALUE, comma separated: "
+            "midline=1), and report on each frame the pose of the two tracks that fits better, each track going "
+            "on by itself (twice the time; '': off)", cli=Cli("--second-track", "NAME=VALUE,..."))
+
+    def _check(self) -> None:
+        second_changes(self.second_track)
 
 
 @_documented
@@ -324,6 +331,45 @@ GROUPS: dict[str, type] = {
 
 #: every option's flat name -> its group's attribute name
 OPTION_GROUP: dict[str, str] = {f.name: g for g, cls in GROUPS.items() for f in dataclasses.fields(cls)}
+
+def _value(text: str) -> Any:
+    """An option's value written as text: true/false/none (any case), a number, else the text."""
+    low = text.strip().lower()
+    if low in ("true", "false", "none"):
+        return {"true": True, "false": False, "none": None}[low]
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text.strip()
+
+
+def second_changes(text: str) -> dict[str, Any]:
+    """The option changes of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict), each
+    checked as :meth:`TrackerOptions.replace` checks it; an :class:`OptionError` naming the
+    part that is wrong."""
+    if not isinstance(text, str):
+        raise OptionError(f"second_track must be text such as 'midline=1', not {text!r}")
+    changes: dict[str, Any] = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, eq, value = part.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise OptionError(f"second_track: {part!r} is not NAME=VALUE")
+        if name == "second_track":
+            raise OptionError("second_track: the second track has no second track of its own")
+        if name not in OPTION_GROUP:
+            raise OptionError(f"second_track: unknown option '{name}'{did_you_mean(name, list(OPTION_GROUP))}")
+        changes[name] = _value(value)
+    if not changes:
+        return changes
+    try:
+        TrackerOptions().replace(**changes)
+    except OptionError as err:
+        raise OptionError(f"second_track: {err}") from None
+    return changes
+
 
 #: the priors' weights: each a spring of the 'full' static update only
 PRIOR_WEIGHTS = ("depth_prior", "upright", "rest_prior", "twist_prior", "spine_twist", "midline", "ground")
@@ -416,6 +462,37 @@ PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": Fals
 #: docs/design/tracking-history.md)
 PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "rest_pose": "start",
                                                   "ground": 0.1})
+
+
+def resolved(opts: TrackerOptions, robot, n_cameras: int, sagittal, symmetry) -> TrackerOptions:
+    """``opts`` with the automatic choices (None) decided for ``robot`` (a
+    :class:`~kms2pin.robot.Robot`) seen by ``n_cameras``, its left/right reflection
+    ``sagittal`` and twin joints ``symmetry`` (None where it has none): the one-camera
+    hypotheses, the limb search."""
+    one = n_cameras == 1
+    hyp, lim = opts.hypotheses, opts.limbs
+    if hyp.mirror_hypothesis and sagittal is None:
+        raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
+    if hyp.swap_hypothesis and symmetry is None:
+        raise ValueError(
+            "swap_hypothesis needs left/right joints (names such as left*/right*, *_l/*_r) whose exchange mirrors "
+            "the body"
+        )
+    search = True if lim.limb_search is None else bool(lim.limb_search)
+    # without joint limits a swapped leg finds a pose (a knee bent backwards) that fits
+    # as well, and the swaps did more harm than good on the benchmark
+    auto = {
+        "mirror_hypothesis": one and sagittal is not None,
+        "swap_hypothesis": one and symmetry is not None and robot.has_limits,
+        "limb_hypothesis": one,
+        "hypothesis_iterations": opts.iteration.max_iterations,
+    }
+    flat = opts.flat()
+    decided = {k: (auto[k] if flat[k] is None else flat[k]) for k in auto}
+    decided["mirror_hypothesis"] = bool(decided["mirror_hypothesis"])
+    decided["swap_hypothesis"] = bool(decided["swap_hypothesis"])
+    decided["limb_hypothesis"] = bool(decided["limb_hypothesis"]) and search
+    return opts.replace(limb_search=search, **decided)
 
 
 def as_options(options: TrackerOptions | Preset | None, overrides: Mapping[str, Any]) -> TrackerOptions:

@@ -11,7 +11,9 @@ Per frame :meth:`Tracker.step`:
 5. on a falling fit tries the limb search (:mod:`~kms2pin.ecm.limbsearch`);
 6. tracks the alternative hypotheses (:mod:`~kms2pin.ecm.hypotheses`), switching to one
    that leads;
-7. flags poor fits, refines the body sizes on good frames, and moves on.
+7. flags poor fits, refines the body sizes on good frames, and moves on;
+8. with ``second_track``, reports the pose of a second tracker of the same frames (the
+   options with some changed, going on by itself) where that fits better.
 
 The options are :class:`~kms2pin.ecm.options.TrackerOptions`; guidance:
 docs/tracking.md; how it is built: docs/design/tracker.md.
@@ -35,9 +37,10 @@ from .limbsearch import LimbMove, LimbSearch
 from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
-from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options
+from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options, resolved, second_changes
 from .priors import GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
+from .secondtrack import better
 from .silhouette import IncrementalFit, visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
@@ -67,6 +70,7 @@ class Tracker:
     def __init__(self, robot: Robot, cameras: Camera | Sequence[Camera], options: TrackerOptions | Preset | None = None,
                  *, q0=None, scales=None, **overrides: Any):
         opts = as_options(options, overrides)
+        changes = second_changes(opts.hypotheses.second_track)
         self.robot = robot
         self.cameras = [cameras] if isinstance(cameras, Camera) else list(cameras)
         if not self.cameras:
@@ -74,7 +78,7 @@ class Tracker:
         self.sizes = BodySizes(robot, scales)
         self._sagittal = sagittal_mirror(robot) if robot.root == "free" else None
         self._symmetry = Symmetry.of(robot)
-        self.options = opts = self._resolve(opts)
+        self.options = opts = resolved(opts, robot, len(self.cameras), self._sagittal, self._symmetry)
         self._reset(robot.q_rest if q0 is None else q0, "initial pose")
         # each camera binned 2x2, for the coarse iterations, the limb search's screening
         self._binned = {c: c.binned(2) for c in self.cameras if min(c.width, c.height) >= 8}
@@ -105,6 +109,9 @@ class Tracker:
         self.hypotheses = Hypotheses(robot, self.ecm, self.ecm.motion, kinds, self._sagittal, self._symmetry,
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
                                      opts.iteration.prediction != "previous")
+        # the second track (second_track): the same options with the changes, going on by itself
+        self._second = Tracker(robot, self.cameras, opts.replace(second_track="", **changes), q0=q0,
+                               scales=scales) if changes else None
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -113,32 +120,6 @@ class Tracker:
                     f"'{robot.system.name}' falls in its {cam.width}x{cam.height} image (camera at "
                     f"{np.round(cam.centre, 3).tolist()}); check the camera's placement or the initial pose"
                 )
-
-    def _resolve(self, opts: TrackerOptions) -> TrackerOptions:
-        """The options with the automatic choices (None) decided for this robot and rig."""
-        one = len(self.cameras) == 1
-        hyp, lim = opts.hypotheses, opts.limbs
-        if hyp.mirror_hypothesis and self._sagittal is None:
-            raise ValueError("mirror_hypothesis needs root='free' and left/right bodies (names with left/right)")
-        if hyp.swap_hypothesis and self._symmetry is None:
-            raise ValueError(
-                "swap_hypothesis needs left/right joints (names such as left*/right*, *_l/*_r) whose exchange mirrors "
-                "the body"
-            )
-        search = True if lim.limb_search is None else bool(lim.limb_search)
-        # without joint limits a swapped leg finds a pose (a knee bent backwards) that fits
-        # as well, and the swaps did more harm than good on the benchmark
-        auto = {
-            "mirror_hypothesis": one and self._sagittal is not None,
-            "swap_hypothesis": one and self._symmetry is not None and self.robot.has_limits,
-            "limb_hypothesis": one,
-            "hypothesis_iterations": opts.iteration.max_iterations,
-        }
-        decided = {k: (auto[k] if opts.flat()[k] is None else opts.flat()[k]) for k in auto}
-        decided["mirror_hypothesis"] = bool(decided["mirror_hypothesis"])
-        decided["swap_hypothesis"] = bool(decided["swap_hypothesis"])
-        decided["limb_hypothesis"] = bool(decided["limb_hypothesis"]) and search
-        return opts.replace(limb_search=search, **decided)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -162,6 +143,8 @@ class Tracker:
         :meth:`BodySizes.calibrate`); returns the scales (n_bodies, 3) relative to the spec."""
         masks = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
         self._calibrate(Views.of(self.cameras, masks), self.q if q is None else np.asarray(q, dtype=float))
+        if self._second is not None:
+            self._second.calibrate(masks, source, q)
         return self.scales.copy()
 
     def _calibrate(self, views: Views, q: np.ndarray) -> None:
@@ -200,6 +183,12 @@ class Tracker:
         (:data:`~kms2pin.ecm.masks.NEARLY_FULL`) says nothing of the pose either:
         ``"mask nearly full"`` (every camera) or ``"mask nearly full in camera k"``.
         """
+        second = self._second.step(masks, source) if self._second is not None else None
+        res = self._step(masks, source)
+        return res if second is None else better(self, res, second, masks, source)
+
+    def _step(self, masks, source: str) -> FrameResult:
+        """:meth:`step` on this track alone."""
         opts, state = self.options, self.state
         masks = check_masks(masks, self.cameras, source, opts.silhouette.clean)
         timings = new_timings()
@@ -380,6 +369,8 @@ class Tracker:
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""
         self._reset(q0, "restart pose")
+        if self._second is not None:
+            self._second.restart(q0)
         self.hypotheses.alts.clear()
         self.ecm.forget_motion()
         if self.reach is not None:

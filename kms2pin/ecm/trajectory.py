@@ -40,7 +40,8 @@ class FrameResult:
             hypothesis"`` or ``"switched to the left/right-swapped hypothesis"``, and
             the limb search's ``"swung '<joint>' the other way"``, ``"put the joints
             below '<joint>' back at rest"`` and ``"swapped '<left joint>' and '<right
-            joint>'"``, and the reach search's ``"pointed '<joint>' at the masks"``.
+            joint>'"``, the reach search's ``"pointed '<joint>' at the masks"``, and ``"from the
+            second track"`` (``second_track``: the second track's pose fitted better).
         timings: seconds spent in the E-step, M-step and static update, and in the size
             refinement (``sizes``; :meth:`step` only).
     """
