@@ -276,7 +276,7 @@ class HypothesisOptions(_Group):
             "on by itself (twice the time; '': off)", cli=Cli("--second-track", "NAME=VALUE,..."))
 
     def _check(self) -> None:
-        second_changes(self.second_track)
+        second_changes(self.second_track)  # its syntax and names; its values in TrackerOptions
 
 
 @_documented
@@ -331,6 +331,8 @@ GROUPS: dict[str, type] = {
 
 #: every option's flat name -> its group's attribute name
 OPTION_GROUP: dict[str, str] = {f.name: g for g, cls in GROUPS.items() for f in dataclasses.fields(cls)}
+#: the options whose values are vectors (tuples)
+_VECTORS = {f.name for cls in GROUPS.values() for f in dataclasses.fields(cls) if isinstance(f.default, tuple)}
 
 def _value(text: str) -> Any:
     """An option's value written as text: true/false/none (any case), a number, else the text."""
@@ -346,9 +348,9 @@ def _value(text: str) -> Any:
 
 
 def second_changes(text: str) -> dict[str, Any]:
-    """The option changes of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict), each
-    checked as :meth:`TrackerOptions.replace` checks it; an :class:`OptionError` naming the
-    part that is wrong."""
+    """The option changes of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict); an
+    :class:`OptionError` naming the part that is not NAME=VALUE with an option's name (the
+    values are checked with the options they change, by :class:`TrackerOptions`)."""
     if not isinstance(text, str):
         raise OptionError(f"second_track must be text such as 'midline=1', not {text!r}")
     changes: dict[str, Any] = {}
@@ -361,13 +363,10 @@ def second_changes(text: str) -> dict[str, Any]:
             raise OptionError("second_track: the second track has no second track of its own")
         if name not in OPTION_GROUP:
             raise OptionError(f"second_track: unknown option '{name}'{did_you_mean(name, list(OPTION_GROUP))}")
+        if name in _VECTORS:
+            raise OptionError(f"second_track: {name} is a vector, which NAME=VALUE cannot write; give it to both "
+                              f"tracks instead")
         changes[name] = _value(value)
-    if not changes:
-        return changes
-    try:
-        TrackerOptions().replace(**changes)
-    except OptionError as err:
-        raise OptionError(f"second_track: {err}") from None
     return changes
 
 
@@ -396,6 +395,12 @@ class TrackerOptions:
         for name, cls in GROUPS.items():
             if not isinstance(getattr(self, name), cls):
                 raise OptionError(f"{name} must be a {cls.__name__}, not {getattr(self, name)!r}")
+        changes = second_changes(self.hypotheses.second_track)
+        if changes:  # the second track's options: these with the changes (its own second_track empty)
+            try:
+                self.replace(second_track="", **changes)
+            except OptionError as err:
+                raise OptionError(f"second_track: {err}") from None
         on = [f"{k}={getattr(self.priors, k)!r}" for k in PRIOR_WEIGHTS if getattr(self.priors, k) > 0]
         if self.springs.static == "diagonal" and on:
             raise OptionError(f"static='diagonal' (the thesis's diagonal springs) has no terms for the priors, "

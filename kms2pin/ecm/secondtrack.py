@@ -29,8 +29,9 @@ FLAG = "from the second track"
 def better(tracker: Tracker, res: FrameResult, second: FrameResult, masks, source: str) -> FrameResult:
     """Of ``tracker``'s frame ``res`` and its second track's ``second`` on ``masks``, the
     one whose pose fits better at ``tracker``'s body sizes over the cameras that see
-    something (ties, and a frame with no mask to fit: ``res``), with both tracks'
-    timings; the second's flagged :data:`FLAG`."""
+    something (ties, and a frame with no mask to fit: ``res``), with that fit and both
+    tracks' timings; the second's flagged :data:`FLAG` (its other flags its own, such as a
+    ``poor fit`` at its own sizes)."""
     timings = {k: res.timings.get(k, 0.0) + second.timings.get(k, 0.0) for k in res.timings}
     views = Views.of(tracker.cameras, check_masks(masks, tracker.cameras, source, tracker.options.silhouette.clean))
     views = views.seeing()
@@ -38,5 +39,5 @@ def better(tracker: Tracker, res: FrameResult, second: FrameResult, masks, sourc
         return dataclasses.replace(res, timings=timings)
     mine, theirs = tracker.ecm.fit(res.q, views), tracker.ecm.fit(second.q, views)
     if not theirs > mine:
-        return dataclasses.replace(res, timings=timings)
+        return dataclasses.replace(res, fit=mine, timings=timings)
     return dataclasses.replace(second, fit=theirs, flags=(*second.flags, FLAG), timings=timings)

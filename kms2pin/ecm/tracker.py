@@ -69,7 +69,7 @@ class Tracker:
 
     def __init__(self, robot: Robot, cameras: Camera | Sequence[Camera], options: TrackerOptions | Preset | None = None,
                  *, q0=None, scales=None, **overrides: Any):
-        opts = as_options(options, overrides)
+        opts = given = as_options(options, overrides)
         changes = second_changes(opts.hypotheses.second_track)
         self.robot = robot
         self.cameras = [cameras] if isinstance(cameras, Camera) else list(cameras)
@@ -110,7 +110,7 @@ class Tracker:
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
                                      opts.iteration.prediction != "previous")
         # the second track (second_track): the same options with the changes, going on by itself
-        self._second = Tracker(robot, self.cameras, opts.replace(second_track="", **changes), q0=q0,
+        self._second = Tracker(robot, self.cameras, given.replace(second_track="", **changes), q0=q0,
                                scales=scales) if changes else None
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
@@ -141,9 +141,9 @@ class Tracker:
         """Measure every body's semi-axes on ``masks`` with the configuration held at ``q``
         (default the current pose, i.e. ``q0`` before the first frame;
         :meth:`BodySizes.calibrate`); returns the scales (n_bodies, 3) relative to the spec."""
-        masks = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
-        self._calibrate(Views.of(self.cameras, masks), self.q if q is None else np.asarray(q, dtype=float))
-        if self._second is not None:
+        checked = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
+        self._calibrate(Views.of(self.cameras, checked), self.q if q is None else np.asarray(q, dtype=float))
+        if self._second is not None:  # the masks as given: it checks (and cleans) them itself
             self._second.calibrate(masks, source, q)
         return self.scales.copy()
 

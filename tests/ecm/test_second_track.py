@@ -30,30 +30,42 @@ def _scene(frames=12):
     return robot, qs, cams, [render(robot, q, cams) for q in qs]
 
 
-def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_themselves():
+@pytest.mark.parametrize("weak_first", [True, False])
+def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_themselves(weak_first):
     """With ``second_track`` every frame is the pose, of two tracks made apart (the options,
     and the options with the changes), that fits the masks better (IoU at the first track's
-    sizes, computed here from the silhouettes); each track goes on from its own poses, so
-    both are those tracks to the last bit.  The second's frames are flagged."""
+    sizes, computed here from the silhouettes), with that fit; each track goes on from its
+    own poses, so both are those tracks to the last bit.  The second's frames are flagged;
+    a frame with no mask to fit is the first track's.  A weak track (one ECM iteration a
+    frame) beside a full one: the full one's frames are taken, whichever it is."""
     robot, qs, cams, masks = _scene()
-    first = Tracker(robot, cams, q0=qs[0], **WEAK)
-    second = Tracker(robot, cams, q0=qs[0], **{**WEAK, **second_changes(CHANGES)})
-    both = Tracker(robot, cams, q0=qs[0], **WEAK, second_track=CHANGES)
-    taken = 0
+    masks.insert(6, [np.zeros_like(m) for m in masks[0]])  # the subject gone for a frame
+    strong = {"max_iterations": 8, "min_iterations": 3}
+    one, other = (WEAK, strong) if weak_first else (strong, WEAK)
+    changes = ",".join(f"{k}={v}" for k, v in other.items())
+    first = Tracker(robot, cams, q0=qs[0], **one)
+    second = Tracker(robot, cams, q0=qs[0], **{**one, **other})
+    both = Tracker(robot, cams, q0=qs[0], **one, second_track=changes)
+    taken = []
     for m in masks:
         a, b, r = first.step(m), second.step(m), both.step(m)
+        if not any(x.any() for x in m):
+            assert "empty mask" in r.flags and FLAG not in r.flags
+            np.testing.assert_array_equal(r.q, a.q)
+            continue
         fits = [silhouette_iou(robot.body_poses(x.q), both.inner, cams, m) for x in (a, b)]
-        if fits[1] > fits[0]:
-            taken += 1
+        taken.append(fits[1] > fits[0])
+        if taken[-1]:
             np.testing.assert_array_equal(r.q, b.q)
             assert r.flags == (*b.flags, FLAG) and r.fit == pytest.approx(fits[1], abs=1e-12)
         else:
             np.testing.assert_array_equal(r.q, a.q)
-            assert FLAG not in r.flags
+            assert FLAG not in r.flags and r.fit == pytest.approx(fits[0], abs=1e-12)
         np.testing.assert_array_equal(both.q, a.q)  # the first track goes on from its own pose
         np.testing.assert_array_equal(both._second.q, b.q)
         assert set(r.timings) == set(a.timings)
-    assert taken > 0  # the track that runs on fits better somewhere
+    # the full track's frames are the better ones (after the first, where both start alike)
+    assert sum(taken) >= len(taken) - 2 if weak_first else sum(taken) <= 2
 
 
 def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason():
@@ -65,10 +77,20 @@ def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason()
                           ("midline", "second_track: 'midline' is not NAME=VALUE"),
                           ("midline=-1", "second_track: midline must be >= 0.0, not -1"),
                           ("second_track=a", "second_track: the second track has no second track of its own"),
-                          ("upright=high", "second_track: upright must be a number, not 'high'")):
+                          ("upright=high", "second_track: upright must be a number, not 'high'"),
+                          ("up=0,1,0", "second_track: up is a vector, which NAME=VALUE cannot write; give it to "
+                                       "both tracks instead")):
         with pytest.raises(OptionError) as err:
             Tracker(robot, Camera.default(), second_track=text)
         assert str(err.value) == message
+    # the changes are checked with the options they change, not the defaults
+    Tracker(robot, Camera.default(), min_iterations=1, second_track="max_iterations=2")
+    with pytest.raises(OptionError, match="^second_track: static='diagonal'"):
+        Tracker(robot, Camera.default(), upright=0.1, second_track="static=diagonal")
+    # the second tracker decides its automatic options for itself (one camera: the alternatives' iterations)
+    t = Tracker(robot, Camera.default(), max_iterations=1, min_iterations=1, second_track="max_iterations=8")
+    assert t.options.hypotheses.hypothesis_iterations == 1
+    assert t._second.options.hypotheses.hypothesis_iterations == 8
 
 
 def test_the_track_command_takes_a_second_track():
