@@ -229,6 +229,10 @@ class PriorOptions(_Group):
                                  "at rest of that body's midline (the legs, the limbs that hold the feet at the "
                                  "first pose, are left out; 0: off)",
                             range=Range(0.0), cli=Cli("--midline", "K"))
+    midline_legs: float | None = option(
+        None, "with midline, keep each thigh out past this share of its offset at rest from the pelvis's "
+              "midline too, so that a kick does not pull the other thigh onto its image (a share in [0, 1]; "
+              "None: the legs left out)", range=Range(0.0, 1.0, none_ok=True), cli=Cli("--midline-legs", "SHARE"))
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "
                                 "'up'; the feet: the bodies lowest at q0; 0: off)",
@@ -247,6 +251,9 @@ class PriorOptions(_Group):
         if not (np.isfinite(norm) and norm > 0.0):
             raise OptionError(f"up must be a non-zero 3-vector, not {up.tolist()!r}")
         object.__setattr__(self, "up", tuple(float(x) for x in up / norm))
+        if self.midline_legs is not None and not self.midline > 0:
+            raise OptionError(f"midline_legs ({self.midline_legs}) is the legs' share of the midline prior, which "
+                              f"is off: set midline above 0 too")
 
 
 @_documented

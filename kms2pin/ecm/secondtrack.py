@@ -24,14 +24,16 @@ __all__ = ["FLAG", "better"]
 
 #: how a frame taken from the second track is flagged
 FLAG = "from the second track"
+#: the start of a frame's flag that its fit is below the tracker's ``poor_fit``
+POOR = "poor fit"
 
 
 def better(tracker: Tracker, res: FrameResult, second: FrameResult, masks, source: str) -> FrameResult:
     """Of ``tracker``'s frame ``res`` and its second track's ``second`` on ``masks``, the
     one whose pose fits better at ``tracker``'s body sizes over the cameras that see
     something (ties, and a frame with no mask to fit: ``res``), with that fit and both
-    tracks' timings; the second's flagged :data:`FLAG` (its other flags its own, such as a
-    ``poor fit`` at its own sizes)."""
+    tracks' timings; the second's flagged :data:`FLAG`, its ``poor fit`` judged again by
+    that fit and ``tracker``'s threshold (its other flags its own)."""
     timings = {k: res.timings.get(k, 0.0) + second.timings.get(k, 0.0) for k in res.timings}
     views = Views.of(tracker.cameras, check_masks(masks, tracker.cameras, source, tracker.options.silhouette.clean))
     views = views.seeing()
@@ -40,4 +42,7 @@ def better(tracker: Tracker, res: FrameResult, second: FrameResult, masks, sourc
     mine, theirs = tracker.ecm.fit(res.q, views), tracker.ecm.fit(second.q, views)
     if not theirs > mine:
         return dataclasses.replace(res, fit=mine, timings=timings)
-    return dataclasses.replace(second, fit=theirs, flags=(*second.flags, FLAG), timings=timings)
+    flags = tuple(f for f in second.flags if not f.startswith(POOR))
+    if theirs < tracker.options.silhouette.poor_fit:
+        flags += (f"{POOR} ({theirs:.2f})",)
+    return dataclasses.replace(second, fit=theirs, flags=(*flags, FLAG), timings=timings)

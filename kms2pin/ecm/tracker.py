@@ -38,7 +38,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options, resolved, second_changes
-from .priors import GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
+from .priors import MIDLINE_MARGIN, GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
 from .secondtrack import better
 from .silhouette import IncrementalFit, visible_bodies
@@ -95,8 +95,8 @@ class Tracker:
                   else None,
                   TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)
         priors += [p for p in twists if p is not None]  # None: no joint to hold
-        midline = MidlinePrior.of(pri.midline, robot, feet(robot, self.q, self.sizes.inner, pri.up)[0]) \
-            if free and pri.midline > 0 else None
+        midline = MidlinePrior.of(pri.midline, robot, feet(robot, self.q, self.sizes.inner, pri.up)[0],
+                                  {**MIDLINE_MARGIN, "legs": pri.midline_legs}) if free and pri.midline > 0 else None
         priors += [midline] if midline is not None else []
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)

@@ -13,6 +13,7 @@ from kms2pin.ecm.priors import MIDLINE_MARGIN, DepthPrior, GroundPrior, MidlineP
 from kms2pin.ecm.springs import full_update
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
+from kms2pin.errors import OptionError
 from kms2pin.robot import load
 
 from ._tracking import (
@@ -610,5 +611,17 @@ def test_tracker_takes_the_midline_prior_as_an_option():
     rest = {int(j): x for j, x in zip(whole.joints[:, 0], whole.least)}  # the offsets at rest, by joint
     np.testing.assert_allclose(prior.least, [MIDLINE_MARGIN["arms"] * rest[int(j)] for j in prior.joints[:, 0]])
     assert not any(isinstance(p, MidlinePrior) for p in Tracker(human, cams).ecm.priors)
+    # midline_legs: the thighs too, each kept out past that share of its offset at rest
+    (legs,) = [p for p in Tracker(human, cams, midline=0.5, midline_legs=0.1).ecm.priors
+               if isinstance(p, MidlinePrior)]
+    names = [human.model.names[int(j)] for j in legs.joints[:, 0]]
+    assert sorted(names) == ["leftThigh_hip", "leftUpperArm_shoulder", "rightThigh_hip", "rightUpperArm_shoulder"]
+    share = {"Thigh": 0.1, "UpperArm": MIDLINE_MARGIN["arms"]}
+    np.testing.assert_allclose(legs.least, [share["Thigh" if "Thigh" in n else "UpperArm"] * rest[int(j)]
+                                            for n, j in zip(names, legs.joints[:, 0])])
+    with pytest.raises(OptionError, match="midline_legs .* set midline above 0"):
+        Tracker(human, cams, midline_legs=0.1)
+    with pytest.raises(OptionError, match="midline_legs must be >= 0.0 and <= 1.0 or None"):
+        Tracker(human, cams, midline=1.0, midline_legs=1.5)
     fixed = load(DIR / "human.kms")
     assert not any(isinstance(p, MidlinePrior) for p in Tracker(fixed, _cams(fixed), midline=0.5).ecm.priors)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from kms2pin.commands._tracking import tracker_options
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.options import second_changes
-from kms2pin.ecm.secondtrack import FLAG
+from kms2pin.ecm.secondtrack import FLAG, better
 from kms2pin.ecm.silhouette import silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -102,3 +104,23 @@ def test_the_track_command_takes_a_second_track():
     bad = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--second-track", "midline=x"])
     with pytest.raises(UsageError, match="--second-track: second_track: midline must be a number"):
         tracker_options(bad)
+
+
+@pytest.mark.parametrize("poor_fit", [0.0, 0.99])
+def test_a_frame_from_the_second_track_is_judged_poor_by_the_first_tracks_threshold(poor_fit):
+    """The second track flags ``poor fit`` by its own sizes and running state; the frame
+    reported is judged again by the first tracker's ``poor_fit`` at the fit it reports
+    (the silhouettes' IoU at the first tracker's sizes, computed here)."""
+    robot, qs, cams, masks = _scene(2)
+    tracker = Tracker(robot, cams, q0=qs[0], poor_fit=poor_fit)
+    tracker.step(masks[0])
+    res = tracker.step(masks[1])
+    off = res.q.copy()
+    off[:3] += [0.15, 0.0, 0.0]  # the first track's pose 15 cm off; the second's the truth
+    second = dataclasses.replace(res, q=qs[1], flags=("poor fit (0.01)", "swung 'x' the other way"))
+    out = better(tracker, dataclasses.replace(res, q=off), second, masks[1], "frame 1")
+    fit = silhouette_iou(robot.body_poses(qs[1]), tracker.inner, cams, masks[1])
+    assert 0.5 < fit < 0.99 and out.fit == pytest.approx(fit, abs=1e-12)
+    judged = (f"poor fit ({fit:.2f})",) if poor_fit else ()
+    assert out.flags == ("swung 'x' the other way", *judged, FLAG)
+    np.testing.assert_array_equal(out.q, qs[1])
