@@ -492,6 +492,18 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     return row
 
 
+def split_items(text: str) -> list[str]:
+    """``text`` split at the commas outside quotes (``a=1,b='x=1,y=2'`` -> two items)."""
+    items, start, quote = [], 0, ""
+    for i, c in enumerate(text):
+        if c in "'\"" and quote in ("", c):
+            quote = "" if quote else c
+        elif c == "," and not quote:
+            items.append(text[start:i])
+            start = i + 1
+    return [x for x in (*items, text[start:]) if x.strip()]
+
+
 def parse_options(items: list[str], flag: str, error) -> dict:
     """``NAME=VALUE`` items, each a Tracker option (the value a Python literal, else the
     text), as a dict; ``error`` (argparse's) for an item that is not one."""

@@ -203,7 +203,8 @@ def main() -> None:
     p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                    help="a Tracker option for every run, preset and variant (repeatable)")
     p.add_argument("--variant", metavar="NAME=VALUE[,NAME=VALUE...]",
-                   help="Tracker options tracked beside the preset on every seed, and compared seed by seed")
+                   help="Tracker options tracked beside the preset on every seed, and compared seed by seed "
+                        "(a value with commas in quotes: second_track='midline=1,reach_rest=2')")
     p.add_argument("--both-ways", action="store_true",
                    help="also track each seed backwards and report the better-fitting pose of the two per frame "
                         "(track --both-ways; twice the time)")
@@ -224,7 +225,7 @@ def main() -> None:
     options = rm.parse_options(a.option, "--option", p.error)
     sets = {"preset": options}
     if a.variant:
-        sets["variant"] = {**options, **rm.parse_options(a.variant.split(","), "--variant", p.error)}
+        sets["variant"] = {**options, **rm.parse_options(rm.split_items(a.variant), "--variant", p.error)}
     jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside) for name in names for opts in sets.values()
             for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:

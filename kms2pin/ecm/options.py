@@ -279,11 +279,12 @@ class HypothesisOptions(_Group):
                                      cli=Cli("--binned-hypotheses"))
     second_track: str = option(
         "", "track the frames a second time beside, with these options changed (NAME=VALUE, comma separated: "
-            "midline=1), and report on each frame the pose of the two tracks that fits better, each track going "
-            "on by itself (twice the time; '': off)", cli=Cli("--second-track", "NAME=VALUE,..."))
+            "midline=1), and report on each frame the pose of the tracks that fits best, each track going on "
+            "by itself (twice the time; more tracks: their changes separated by ';'; '': off)",
+        cli=Cli("--second-track", "NAME=VALUE,..."))
 
     def _check(self) -> None:
-        second_changes(self.second_track)  # its syntax and names; its values in TrackerOptions
+        track_changes(self.second_track)  # its syntax and names; its values in TrackerOptions
 
 
 @_documented
@@ -354,8 +355,21 @@ def _value(text: str) -> Any:
     return text.strip()
 
 
+def track_changes(text: str) -> tuple[dict[str, Any], ...]:
+    """The option changes of each track beside the first that ``second_track`` asks for
+    (``"midline=1; reach_rest=2"`` -> two dicts, each of changes to the options as given;
+    ``""`` -> none): :func:`second_changes` of each part between ';'."""
+    if not isinstance(text, str):
+        raise OptionError(f"second_track must be text such as 'midline=1', not {text!r}")
+    parts = text.split(";")
+    if len(parts) > 1 and not all(p.strip() for p in parts):
+        raise OptionError(f"second_track: a track between ';' changes nothing in {text!r} (it would be the first "
+                          f"track again)")
+    return tuple(c for c in (second_changes(p) for p in parts) if c)
+
+
 def second_changes(text: str) -> dict[str, Any]:
-    """The option changes of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict); an
+    """The option changes of one track of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict); an
     :class:`OptionError` naming the part that is not NAME=VALUE with an option's name (the
     values are checked with the options they change, by :class:`TrackerOptions`)."""
     if not isinstance(text, str):
@@ -402,9 +416,8 @@ class TrackerOptions:
         for name, cls in GROUPS.items():
             if not isinstance(getattr(self, name), cls):
                 raise OptionError(f"{name} must be a {cls.__name__}, not {getattr(self, name)!r}")
-        changes = second_changes(self.hypotheses.second_track)
-        if changes:  # the second track's options: these with the changes (its own second_track empty)
-            try:
+        for changes in track_changes(self.hypotheses.second_track):
+            try:  # each further track's options: these with its changes (its own second_track empty)
                 self.replace(second_track="", **changes)
             except OptionError as err:
                 raise OptionError(f"second_track: {err}") from None

@@ -4,14 +4,16 @@ A track through real silhouettes is chaotic: two tracks that differ in a detail 
 subject at different frames, and on a lost frame the true pose fits the masks clearly
 better than the lost one (docs/design/tracking-history.md).  So a
 :class:`~kms2pin.ecm.tracker.Tracker` with ``second_track`` runs a second tracker on the
-same frames, with some options changed, each track going on from its own poses, and
-reports on each frame the pose of the two that fits better (IoU at the first tracker's
-body sizes).  Twice the time.
+same frames, with some options changed (or several, each with its own changes), each
+track going on from its own poses, and reports on each frame the pose that fits best
+(IoU at the first tracker's body sizes).  Each track beside costs about one more track's
+time.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from .masks import Views, check_masks
@@ -20,29 +22,41 @@ from .trajectory import FrameResult
 if TYPE_CHECKING:
     from .tracker import Tracker
 
-__all__ = ["FLAG", "better"]
+__all__ = ["FLAG", "POOR", "better", "flag"]
 
-#: how a frame taken from the second track is flagged
+#: how a frame taken from the second track is flagged (a third: :func:`flag`)
 FLAG = "from the second track"
 #: the start of a frame's flag that its fit is below the tracker's ``poor_fit``
 POOR = "poor fit"
+_ORDINALS = ("second", "third", "fourth", "fifth")
 
 
-def better(tracker: Tracker, res: FrameResult, second: FrameResult, masks, source: str) -> FrameResult:
-    """Of ``tracker``'s frame ``res`` and its second track's ``second`` on ``masks``, the
-    one whose pose fits better at ``tracker``'s body sizes over the cameras that see
-    something (ties, and a frame with no mask to fit: ``res``), with that fit and both
-    tracks' timings; the second's flagged :data:`FLAG`, its ``poor fit`` judged again by
-    that fit and ``tracker``'s threshold (its other flags its own)."""
-    timings = {k: res.timings.get(k, 0.0) + second.timings.get(k, 0.0) for k in res.timings}
+def flag(k: int) -> str:
+    """The flag of a frame taken from track ``k`` beside the first (0: the second track)."""
+    return f"from the {_ORDINALS[k]} track" if k < len(_ORDINALS) else f"from track {k + 2}"
+
+
+def better(tracker: Tracker, res: FrameResult, others: Sequence[FrameResult], masks, source: str) -> FrameResult:
+    """Of ``tracker``'s frame ``res`` and its tracks beside's frames ``others`` on
+    ``masks``, the one whose pose fits best at ``tracker``'s body sizes over the cameras
+    that see something (ties go to the earlier track; a frame with no mask to fit:
+    ``res``), with that fit and every track's timings summed; one from beside flagged
+    :func:`flag`, its ``poor fit`` judged again by that fit and ``tracker``'s threshold
+    (its other flags its own)."""
+    timings = {k: res.timings.get(k, 0.0) + sum(o.timings.get(k, 0.0) for o in others) for k in res.timings}
     views = Views.of(tracker.cameras, check_masks(masks, tracker.cameras, source, tracker.options.silhouette.clean))
     views = views.seeing()
     if not res.iterations or not len(views):
         return dataclasses.replace(res, timings=timings)
-    mine, theirs = tracker.ecm.fit(res.q, views), tracker.ecm.fit(second.q, views)
-    if not theirs > mine:
-        return dataclasses.replace(res, fit=mine, timings=timings)
-    flags = tuple(f for f in second.flags if not f.startswith(POOR))
-    if theirs < tracker.options.silhouette.poor_fit:
-        flags += (f"{POOR} ({theirs:.2f})",)
-    return dataclasses.replace(second, fit=theirs, flags=(*flags, FLAG), timings=timings)
+    best, fit = -1, tracker.ecm.fit(res.q, views)
+    for k, other in enumerate(others):
+        theirs = tracker.ecm.fit(other.q, views)
+        if theirs > fit:
+            best, fit = k, theirs
+    if best < 0:
+        return dataclasses.replace(res, fit=fit, timings=timings)
+    chosen = others[best]
+    flags = tuple(f for f in chosen.flags if not f.startswith(POOR))
+    if fit < tracker.options.silhouette.poor_fit:
+        flags += (f"{POOR} ({fit:.2f})",)
+    return dataclasses.replace(chosen, fit=fit, flags=(*flags, flag(best)), timings=timings)

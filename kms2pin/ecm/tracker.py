@@ -12,7 +12,7 @@ Per frame :meth:`Tracker.step`:
 6. tracks the alternative hypotheses (:mod:`~kms2pin.ecm.hypotheses`), switching to one
    that leads;
 7. flags poor fits, refines the body sizes on good frames, and moves on;
-8. with ``second_track``, reports the pose of a second tracker of the same frames (the
+8. with ``second_track``, reports the pose of a tracker beside of the same frames (the
    options with some changed, going on by itself) where that fits better.
 
 The options are :class:`~kms2pin.ecm.options.TrackerOptions`; guidance:
@@ -37,7 +37,7 @@ from .limbsearch import LimbMove, LimbSearch
 from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
-from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options, resolved, second_changes
+from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options, resolved, track_changes
 from .priors import MIDLINE_MARGIN, GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
 from .reach import ReachSearch
 from .secondtrack import better
@@ -70,7 +70,7 @@ class Tracker:
     def __init__(self, robot: Robot, cameras: Camera | Sequence[Camera], options: TrackerOptions | Preset | None = None,
                  *, q0=None, scales=None, **overrides: Any):
         opts = given = as_options(options, overrides)
-        changes = second_changes(opts.hypotheses.second_track)
+        tracks = track_changes(opts.hypotheses.second_track)
         self.robot = robot
         self.cameras = [cameras] if isinstance(cameras, Camera) else list(cameras)
         if not self.cameras:
@@ -109,9 +109,9 @@ class Tracker:
         self.hypotheses = Hypotheses(robot, self.ecm, self.ecm.motion, kinds, self._sagittal, self._symmetry,
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
                                      opts.iteration.prediction != "previous")
-        # the second track (second_track): the same options with the changes, going on by itself
-        self._second = Tracker(robot, self.cameras, given.replace(second_track="", **changes), q0=q0,
-                               scales=scales) if changes else None
+        # the tracks beside (second_track): the same options with each one's changes, each going on by itself
+        self._beside = [Tracker(robot, self.cameras, given.replace(second_track="", **changes), q0=q0, scales=scales)
+                        for changes in tracks]
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -143,8 +143,8 @@ class Tracker:
         :meth:`BodySizes.calibrate`); returns the scales (n_bodies, 3) relative to the spec."""
         checked = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
         self._calibrate(Views.of(self.cameras, checked), self.q if q is None else np.asarray(q, dtype=float))
-        if self._second is not None:  # the masks as given: it checks (and cleans) them itself
-            self._second.calibrate(masks, source, q)
+        for other in self._beside:  # the masks as given: each checks (and cleans) them itself
+            other.calibrate(masks, source, q)
         return self.scales.copy()
 
     def _calibrate(self, views: Views, q: np.ndarray) -> None:
@@ -183,9 +183,9 @@ class Tracker:
         (:data:`~kms2pin.ecm.masks.NEARLY_FULL`) says nothing of the pose either:
         ``"mask nearly full"`` (every camera) or ``"mask nearly full in camera k"``.
         """
-        second = self._second.step(masks, source) if self._second is not None else None
+        others = [other.step(masks, source) for other in self._beside]
         res = self._step(masks, source)
-        return res if second is None else better(self, res, second, masks, source)
+        return better(self, res, others, masks, source) if others else res
 
     def _step(self, masks, source: str) -> FrameResult:
         """:meth:`step` on this track alone."""
@@ -369,8 +369,8 @@ class Tracker:
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""
         self._reset(q0, "restart pose")
-        if self._second is not None:
-            self._second.restart(q0)
+        for other in self._beside:
+            other.restart(q0)
         self.hypotheses.alts.clear()
         self.ecm.forget_motion()
         if self.reach is not None:

@@ -11,8 +11,8 @@ from kms2pin.cli import build_parser
 from kms2pin.commands._tracking import tracker_options
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
-from kms2pin.ecm.options import second_changes
-from kms2pin.ecm.secondtrack import FLAG, better
+from kms2pin.ecm.options import second_changes, track_changes
+from kms2pin.ecm.secondtrack import FLAG, better, flag
 from kms2pin.ecm.silhouette import silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -64,7 +64,7 @@ def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_thems
             np.testing.assert_array_equal(r.q, a.q)
             assert FLAG not in r.flags and r.fit == pytest.approx(fits[0], abs=1e-12)
         np.testing.assert_array_equal(both.q, a.q)  # the first track goes on from its own pose
-        np.testing.assert_array_equal(both._second.q, b.q)
+        np.testing.assert_array_equal(both._beside[0].q, b.q)
         assert set(r.timings) == set(a.timings)
     # the full track's frames are the better ones (after the first, where both start alike)
     assert sum(taken) >= len(taken) - 2 if weak_first else sum(taken) <= 2
@@ -92,7 +92,7 @@ def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason()
     # the second tracker decides its automatic options for itself (one camera: the alternatives' iterations)
     t = Tracker(robot, Camera.default(), max_iterations=1, min_iterations=1, second_track="max_iterations=8")
     assert t.options.hypotheses.hypothesis_iterations == 1
-    assert t._second.options.hypotheses.hypothesis_iterations == 8
+    assert t._beside[0].options.hypotheses.hypothesis_iterations == 8
 
 
 def test_the_track_command_takes_a_second_track():
@@ -118,9 +118,49 @@ def test_a_frame_from_the_second_track_is_judged_poor_by_the_first_tracks_thresh
     off = res.q.copy()
     off[:3] += [0.15, 0.0, 0.0]  # the first track's pose 15 cm off; the second's the truth
     second = dataclasses.replace(res, q=qs[1], flags=("poor fit (0.01)", "swung 'x' the other way"))
-    out = better(tracker, dataclasses.replace(res, q=off), second, masks[1], "frame 1")
+    out = better(tracker, dataclasses.replace(res, q=off), [second], masks[1], "frame 1")
     fit = silhouette_iou(robot.body_poses(qs[1]), tracker.inner, cams, masks[1])
     assert 0.5 < fit < 0.99 and out.fit == pytest.approx(fit, abs=1e-12)
     judged = (f"poor fit ({fit:.2f})",) if poor_fit else ()
     assert out.flags == ("swung 'x' the other way", *judged, FLAG)
     np.testing.assert_array_equal(out.q, qs[1])
+
+
+def test_several_tracks_beside_each_frame_the_best_fitting_of_them():
+    """``second_track`` with tracks separated by ';': each a tracker of its own with its
+    changes to the options as given; each frame is the pose of the three that fits the
+    masks best (ties to the earlier track), flagged by the track it came from."""
+    robot, qs, cams, masks = _scene(8)
+    two = {"max_iterations": 2, "min_iterations": 1, "limb_search": False}
+    strong = {"max_iterations": 8, "min_iterations": 3}
+    alone = [Tracker(robot, cams, q0=qs[0], **WEAK), Tracker(robot, cams, q0=qs[0], **{**WEAK, **two}),
+             Tracker(robot, cams, q0=qs[0], **{**WEAK, **strong})]
+    both = Tracker(robot, cams, q0=qs[0], **WEAK, second_track="max_iterations=2; max_iterations=8,min_iterations=3")
+    assert [len(t._beside) for t in (both, *both._beside)] == [2, 0, 0]
+    assert both._beside[1].options.iteration.min_iterations == 3
+    assert both._beside[0].options.iteration.min_iterations == 1  # each track's changes to the options as given
+    chosen = []
+    for m in masks:
+        runs, r = [t.step(m) for t in alone], both.step(m)
+        fits = [silhouette_iou(robot.body_poses(x.q), both.inner, cams, m) for x in runs]
+        k = int(np.argmax(fits))
+        chosen.append(k)
+        np.testing.assert_array_equal(r.q, runs[k].q)
+        assert r.fit == pytest.approx(fits[k], abs=1e-12)
+        assert (flag(k - 1) in r.flags) if k else not any(f.startswith("from the") for f in r.flags)
+        for t, other in zip(both._beside, alone[1:]):
+            np.testing.assert_array_equal(t.q, other.q)
+    assert {1, 2} <= set(chosen) and chosen.count(0) <= 1  # both tracks beside chosen, the weak one hardly
+    assert flag(0) == FLAG and flag(1) == "from the third track" and flag(5) == "from track 7"
+
+
+def test_tracks_beside_are_separated_by_semicolons_and_none_is_empty():
+    assert track_changes("midline=1; reach_rest=2,midline=1") == ({"midline": 1}, {"reach_rest": 2, "midline": 1})
+    assert track_changes("") == () and track_changes("midline=1") == ({"midline": 1},)
+    robot = _robot("lowerbody")
+    for text, message in (("midline=1;", "second_track: a track between ';' changes nothing in 'midline=1;'"),
+                          ("midline=1;;reach_rest=2", "second_track: a track between ';' changes nothing"),
+                          ("midline=1; midlin=2", "second_track: unknown option 'midlin'"),
+                          ("midline=1; midline=-1", "second_track: midline must be >= 0.0, not -1")):
+        with pytest.raises(OptionError, match=f"^{message}"):
+            Tracker(robot, Camera.default(), second_track=text)
