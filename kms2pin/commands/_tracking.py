@@ -103,9 +103,14 @@ def tracker_options(args: argparse.Namespace, base: TrackerOptions | Preset | No
             value = tuple(value)
         elif f.metadata["cli"].none is not None and value == f.metadata["cli"].none:
             value = None
-        try:
-            TrackerOptions().replace(**{f.name: value})
-        except OptionError as err:
-            raise UsageError(f"{f.metadata['cli'].flag}: {err}") from None
         overrides[f.name] = value
+    flags = {f.name: f.metadata["cli"].flag for f in cli_fields()}
+    for name, value in overrides.items():
+        try:  # each flag alone, then (a check across options: --midline-legs needs --midline) with the others
+            TrackerOptions().replace(**{name: value})
+        except OptionError as err:
+            try:
+                TrackerOptions().replace(**overrides)
+            except OptionError:
+                raise UsageError(f"{flags[name]}: {err}") from None
     return as_options(base, {**overrides, **fixed})

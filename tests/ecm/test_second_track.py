@@ -104,6 +104,16 @@ def test_the_track_command_takes_a_second_track():
     bad = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--second-track", "midline=x"])
     with pytest.raises(UsageError, match="--second-track: second_track: midline must be a number"):
         tracker_options(bad)
+    # two tracks beside; a flag whose check is across options (--midline-legs needs --midline)
+    # is checked with the other flags given, whatever their order
+    three = "midline=1; midline=1,midline_legs=0.1"
+    for order in (["--midline-legs", "0.1", "--midline", "1"], ["--midline", "1", "--midline-legs", "0.1"]):
+        opts = tracker_options(parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--second-track",
+                                                  three, *order]))
+        assert opts.hypotheses.second_track == three and (opts.priors.midline, opts.priors.midline_legs) == (1, 0.1)
+    alone = parser.parse_args(["track", "x.kms", "--masks", "m", "-o", "o", "--midline-legs", "0.1"])
+    with pytest.raises(UsageError, match="^--midline-legs: midline_legs .* set midline above 0"):
+        tracker_options(alone)
 
 
 @pytest.mark.parametrize("poor_fit", [0.0, 0.99])
