@@ -46,6 +46,7 @@ from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways,
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
+from ..ecm.trajectory import POOR_FIT
 from ..errors import BvhError, InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
@@ -471,7 +472,7 @@ def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, m
 
 def _summary(out: Path, results: list, frames: _Frames, poor_fit: float, video: bool) -> None:
     fits = np.array([r.fit for r in results])
-    poor = [frames.numbers[k] for k, r in enumerate(results) if any(f.startswith("poor fit") for f in r.flags)]
+    poor = [frames.numbers[k] for k, r in enumerate(results) if any(f.startswith(POOR_FIT) for f in r.flags)]
     if poor:
         print(f"note: {len(poor)} frame(s) fit the masks poorly (IoU < {poor_fit:g}), the first at frame "
               f"{poor[0]}: the track is probably lost there (flag 'poor fit' in trajectory.csv)", file=sys.stderr)

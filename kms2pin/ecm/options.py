@@ -372,8 +372,6 @@ def second_changes(text: str) -> dict[str, Any]:
     """The option changes of one track of ``second_track`` (``"midline=1,reach_rest=2"`` -> a dict); an
     :class:`OptionError` naming the part that is not NAME=VALUE with an option's name (the
     values are checked with the options they change, by :class:`TrackerOptions`)."""
-    if not isinstance(text, str):
-        raise OptionError(f"second_track must be text such as 'midline=1', not {text!r}")
     changes: dict[str, Any] = {}
     for part in (p.strip() for p in text.split(",") if p.strip()):
         name, eq, value = part.partition("=")

@@ -17,17 +17,15 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from .masks import Views, check_masks
-from .trajectory import FrameResult
+from .trajectory import POOR_FIT, FrameResult, poor_fit_flag
 
 if TYPE_CHECKING:
     from .tracker import Tracker
 
-__all__ = ["FLAG", "POOR", "better", "flag"]
+__all__ = ["FLAG", "better", "flag"]
 
 #: how a frame taken from the second track is flagged (a third: :func:`flag`)
 FLAG = "from the second track"
-#: the start of a frame's flag that its fit is below the tracker's ``poor_fit``
-POOR = "poor fit"
 _ORDINALS = ("second", "third", "fourth", "fifth")
 
 
@@ -56,7 +54,7 @@ def better(tracker: Tracker, res: FrameResult, others: Sequence[FrameResult], ma
     if best < 0:
         return dataclasses.replace(res, fit=fit, timings=timings)
     chosen = others[best]
-    flags = tuple(f for f in chosen.flags if not f.startswith(POOR))
+    flags = tuple(f for f in chosen.flags if not f.startswith(POOR_FIT))
     if fit < tracker.options.silhouette.poor_fit:
-        flags += (f"{POOR} ({fit:.2f})",)
+        flags += (poor_fit_flag(fit),)
     return dataclasses.replace(chosen, fit=fit, flags=(*flags, flag(best)), timings=timings)

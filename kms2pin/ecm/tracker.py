@@ -45,7 +45,7 @@ from .silhouette import IncrementalFit, visible_bodies
 from .sizes import BodySizes
 from .state import RunningFit, SequenceState
 from .symmetry import Symmetry
-from .trajectory import FrameResult, Trajectory, TrajectoryCsvWriter
+from .trajectory import FrameResult, Trajectory, TrajectoryCsvWriter, poor_fit_flag
 
 __all__ = ["SEGMENTED_MASKS", "FrameResult", "Tracker", "Trajectory", "TrajectoryCsvWriter"]
 
@@ -224,7 +224,7 @@ class Tracker:
             state.running.update(fit, state.frame)
         poor = fit < opts.silhouette.poor_fit
         if poor:
-            flags += (f"poor fit ({fit:.2f})",)
+            flags += (poor_fit_flag(fit),)
         if fit == 0.0:  # the model's silhouettes miss the masks: nothing to go on
             q = self.q.copy()
             flags += ("lost: kept the last pose",)

@@ -17,6 +17,14 @@ from ..lang.symbols import MAX_LENGTH
 from ..robot import Robot
 from ..userfile import MAX_DATA_BYTES, read_user_file
 
+#: the start of a frame's flag that its fit is below the tracker's ``poor_fit``
+POOR_FIT = "poor fit"
+
+
+def poor_fit_flag(fit: float) -> str:
+    """The flag of a frame fitting ``fit`` (IoU), below the tracker's ``poor_fit``."""
+    return f"{POOR_FIT} ({fit:.2f})"
+
 
 @dataclass(frozen=True)
 class FrameResult:

@@ -80,6 +80,7 @@ def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason()
                           ("midline=-1", "second_track: midline must be >= 0.0, not -1"),
                           ("second_track=a", "second_track: the second track has no second track of its own"),
                           ("upright=high", "second_track: upright must be a number, not 'high'"),
+                          (3, "second_track must be text such as 'midline=1', not 3"),
                           ("up=0,1,0", "second_track: up is a vector, which NAME=VALUE cannot write; give it to "
                                        "both tracks instead")):
         with pytest.raises(OptionError) as err:
