@@ -475,7 +475,7 @@ def _summary(out: Path, results: list, frames: _Frames, poor_fit: float, video: 
     poor = [frames.numbers[k] for k, r in enumerate(results) if any(f.startswith(POOR_FIT) for f in r.flags)]
     if poor:
         print(f"note: {len(poor)} frame(s) fit the masks poorly (IoU < {poor_fit:g}), the first at frame "
-              f"{poor[0]}: the track is probably lost there (flag 'poor fit' in trajectory.csv)", file=sys.stderr)
+              f"{poor[0]}: the track is probably lost there (flag '{POOR_FIT}' in trajectory.csv)", file=sys.stderr)
         if video:
             print(f"note: if the masks in {frames.masks_dir} miss parts of the subject, the background model learnt "
                   "them (a subject that stands still while most of the video is taken); `kms2pin segment` with "
