@@ -81,6 +81,7 @@ from kms2pin.ecm.evaluate import ray_parts  # noqa: E402
 from kms2pin.ecm.limbs import hinged_bodies, sides  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.smoothing import smooth  # noqa: E402
+from kms2pin.ecm.stretches import track_poses  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.lang import parse_text  # noqa: E402
 from kms2pin.robot import Robot  # noqa: E402
@@ -322,12 +323,17 @@ def summary(err: np.ndarray, flex_rmse: tuple[float, float]) -> str:
             f"flexion RMSE knees {flex_rmse[0]:5.1f} elbows {flex_rmse[1]:5.1f} deg")
 
 
-def track(seq: Sequence, cameras, masks, options: dict, clock=time.perf_counter):
+def track(seq: Sequence, cameras, masks, options: dict, clock=time.perf_counter, tracks: list | None = None):
     """Track ``masks`` from the floor's first pose; returns (configurations, frames/s by
-    ``clock``, flags per frame, the tracker)."""
+    ``clock``, flags per frame, the tracker).  ``tracks``, a list, is given each frame's
+    ``track_poses`` (every track's own pose, for ``stretches``)."""
     tr = Tracker(seq.model, cameras, q0=seq.floor[0], **options)
     t0 = clock()
-    results = [tr.step(m, source=f"frame {k}") for k, m in enumerate(masks)]
+    results = []
+    for k, m in enumerate(masks):
+        results.append(tr.step(m, source=f"frame {k}"))
+        if tracks is not None:
+            tracks.append(track_poses(tr))
     fps = len(masks) / max(clock() - t0, 1e-9)
     return np.array([r.q for r in results]), fps, [r.flags for r in results], tr
 

@@ -5,7 +5,7 @@ change is judged over about twenty seeds, paired.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion_seeds.py --only walk-2cam-320
         --seeds 0-19 [--jobs 2] [--option NAME=VALUE] [--variant NAME=VALUE[,NAME=VALUE...]]
-        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways] [--beside]
+        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways] [--beside] [--stretches]
 
 Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
 over the seeds their mean, median, range and standard deviation; the median over the
@@ -17,7 +17,10 @@ flexion RMSE; with ``--both-ways`` the track made both ways (``track --both-ways
 :mod:`kms2pin.ecm.bothways`), raw and smoothed, against the forward track, and smoothed
 with the whole poses alone (before the parts); with ``--beside`` the forward track's
 parts taken from the frames beside, without a backward pass (``track --beside``),
-smoothed, against the forward track smoothed; frames/s of
+smoothed, against the forward track smoothed; with ``--stretches`` (and tracks beside:
+``second_track`` in ``--option`` or ``--variant``) each stretch from the track that fits it
+best, then the parts (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw and
+smoothed, against the track as it was tracked, and the whole poses alone; frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -41,6 +44,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import realmotion as rm  # noqa: E402
 
 from kms2pin.ecm.bothways import MARGIN, beside, both_ways, choose  # noqa: E402
+from kms2pin.ecm.stretches import stretches  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -53,12 +57,13 @@ def _sequence(bvh: Path, motion: str, frames: int | None) -> rm.Sequence:
 
 def track_seed(job: tuple) -> dict:
     """One case's track on one seed's masks: its figures (module docstring)."""
-    name, bvh, frames, seed, cache, options, two_ways, one_beside = job
+    name, bvh, frames, seed, cache, options, two_ways, one_beside, stretch = job
     motion, n, factor, preset = rm.CASES[name]
     seq = _sequence(bvh, motion, frames)
     cameras = rm.rig(seq.path, n, factor)
     masks = rm.rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
-    q, fps, _, tracker = rm.track(seq, cameras, masks, {**preset, **options}, clock=time.process_time)
+    tracks = [] if stretch and options.get("second_track") else None
+    q, fps, _, tracker = rm.track(seq, cameras, masks, {**preset, **options}, clock=time.process_time, tracks=tracks)
     truth = np.array([rm.points(seq.subject, x, rm.JOINTS) for x in seq.q])
     flex_true = rm.flexion(truth)
 
@@ -84,6 +89,18 @@ def track_seed(job: tuple) -> dict:
         err_x, flex_x = smoothed(bs.q)
         row |= {"beside_smoothed": err_x.mean(), "elbows2_beside": (flex_x[:, 2:] ** 2).mean(),
                 "knees2_beside": (flex_x[:, :2] ** 2).mean(), "beside_only_frames": float(bs.taken.any(axis=1).mean())}
+    if tracks is not None:  # --stretches: each stretch from the track that fits it best, then the parts
+        st = stretches(tracker, masks, np.array(tracks).transpose(1, 0, 2))
+        err_t, flex_t = scored(st.q)
+        err_ts, flex_ts = smoothed(st.q)
+        whole = np.array(tracks)[np.arange(len(masks)), st.track]
+        row |= {"stretches": err_t.mean(), "worst_stretches": err_t.mean(axis=1).max(),
+                "over120_stretches": int(np.sum(err_t.mean(axis=1) > 120.0)), "stretches_smoothed": err_ts.mean(),
+                "worst_stretches_smoothed": err_ts.mean(axis=1).max(),
+                "knees2_stretches": (flex_ts[:, :2] ** 2).mean(), "elbows2_stretches": (flex_ts[:, 2:] ** 2).mean(),
+                "knees2_stretches_raw": (flex_t[:, :2] ** 2).mean(), "elbows2_stretches_raw": (flex_t[:, 2:] ** 2).mean(),
+                "stretches_whole": scored(whole)[0].mean(), "stretches_whole_smoothed": smoothed(whole)[0].mean(),
+                "changes": int(np.sum(st.track[1:] != st.track[:-1]))}
     if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
         err_b, flex_b = smoothed(bw.q)
@@ -128,7 +145,7 @@ def report(label: str, rows: list[dict]) -> str:
             f"{np.median(smoothed):.1f}, the seeds' means {np.mean(smoothed - means):+.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2_smoothed'] for r in rows])):.1f}, elbows "
             f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg" + _beside(rows, smoothed)
-            + _both(rows, means))
+            + _both(rows, means) + _stretches(rows, means, smoothed))
 
 
 def _beside(rows: list[dict], smoothed: np.ndarray) -> str:
@@ -176,6 +193,38 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
             f"{np.mean(smoothed - whole):+.2f} mm), elbows {np.sqrt(np.mean([r['elbows2_whole'] for r in rows])):.1f} deg")
 
 
+def _stretches(rows: list[dict], means: np.ndarray, smoothed: np.ndarray) -> str:
+    """The ``--stretches`` lines of :func:`report` (empty without them)."""
+    if "stretches" not in rows[0]:
+        return ""
+
+    def col(key: str) -> np.ndarray:
+        return np.array([r[key] for r in rows])
+
+    def against(x: np.ndarray, base: np.ndarray) -> str:
+        d = x - base
+        se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.2f}" if len(d) > 1 else ""
+        return f"{d.mean():+.2f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}"
+
+    def rms(key: str) -> float:
+        return float(np.sqrt(np.mean(col(key))))
+
+    raw, sm = col("stretches"), col("stretches_smoothed")
+    return (f"\n    stretches (track --stretches; {np.median(col('changes')):.0f} changes of track, median): mean "
+            f"{raw.mean():.1f} mm, median {np.median(raw):.1f}, worst frame {np.median(col('worst_stretches')):.0f} "
+            f"(median; max {col('worst_stretches').max():.0f}), none above 120 mm on "
+            f"{sum(r['over120_stretches'] == 0 for r in rows)} of {len(rows)} seeds (frames above 120 mm "
+            f"{int(col('over120_stretches').sum())} in all, against {sum(r['over120'] for r in rows)}); against the "
+            f"track {against(raw, means)}; flexion RMSE knees {rms('knees2_stretches_raw'):.1f}, elbows "
+            f"{rms('elbows2_stretches_raw'):.1f} deg\n"
+            f"    stretches smoothed: mean {sm.mean():.1f} mm, median {np.median(sm):.1f}, worst frame "
+            f"{np.median(col('worst_stretches_smoothed')):.0f} (median); against the track smoothed "
+            f"{against(sm, smoothed)}; flexion RMSE knees {rms('knees2_stretches'):.1f}, elbows "
+            f"{rms('elbows2_stretches'):.1f} deg\n"
+            f"    stretches, whole poses only (before the parts): mean {col('stretches_whole').mean():.1f} mm "
+            f"({against(col('stretches_whole'), means)}), smoothed {col('stretches_whole_smoothed').mean():.1f}")
+
+
 def paired(base: list[dict], variant: list[dict]) -> str:
     """The variant's seeds' means against the preset's, seed by seed."""
     d = np.array([v["mean"] - b["mean"] for b, v in zip(base, variant)])
@@ -211,6 +260,9 @@ def main() -> None:
     p.add_argument("--beside", action="store_true",
                    help="also take each seed's parts from the frames beside, without a backward pass "
                         "(track --beside; tens of seconds)")
+    p.add_argument("--stretches", action="store_true",
+                   help="with tracks beside (second_track), also keep each stretch from the track that fits it "
+                        "best, then the parts (track --stretches; seconds to tens of seconds)")
     p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
@@ -226,7 +278,7 @@ def main() -> None:
     sets = {"preset": options}
     if a.variant:
         sets["variant"] = {**options, **rm.parse_options(rm.split_items(a.variant), "--variant", p.error)}
-    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside) for name in names for opts in sets.values()
+    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside, a.stretches) for name in names for opts in sets.values()
             for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:
         out = pool.map(track_seed, jobs, chunksize=1)

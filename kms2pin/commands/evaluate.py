@@ -31,6 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="score OUT/both_ways.csv (written by track --both-ways) instead of OUT/trajectory.csv")
     which.add_argument("--beside", action="store_true",
                        help="score OUT/beside.csv (written by track --beside) instead of OUT/trajectory.csv")
+    which.add_argument("--stretches", action="store_true",
+                       help="score OUT/stretches.csv (written by track --stretches) instead of OUT/trajectory.csv")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -44,9 +46,10 @@ def run(args: argparse.Namespace) -> int:
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
     track_csv = out / ("smoothed.csv" if args.smoothed else "both_ways.csv" if args.both_ways
-                       else "beside.csv" if args.beside else "trajectory.csv")
+                       else "beside.csv" if args.beside else "stretches.csv" if args.stretches else "trajectory.csv")
     if not track_csv.is_file():
-        flag = "--smooth HZ" if args.smoothed else "--both-ways" if args.both_ways else "--beside"
+        flag = ("--smooth HZ" if args.smoothed else "--both-ways" if args.both_ways else "--beside" if args.beside
+                else "--stretches")
         raise InputDataError(f"{out}: no {track_csv.name} (written by kms2pin track {flag})")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")

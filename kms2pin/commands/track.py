@@ -16,7 +16,10 @@ last pose and both_ways.csv keeps the better-fitting stretches of the two tracks
 track where they agree, and each frame's better-fitting parts of the two (every joint with
 the joints below it: hips, knees, spine, collars, shoulders, elbows, ...), then of the
 frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv takes the frames
-beside on the forward track, without the backward pass;
+beside on the forward track, without the backward pass; with --stretches and tracks
+beside (--second-track), stretches.csv keeps each stretch of frames from the track that
+fits it best, changing track where the tracks agree, then each part from the other tracks
+and from the frames beside (kms2pin.ecm.stretches);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -44,9 +47,12 @@ import numpy as np
 from ..bvh import to_bvh
 from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways, parts
 from ..ecm.camera import Camera
-from ..ecm.options import SEGMENTED_MASKS
+from ..ecm.options import SEGMENTED_MASKS, track_changes
+from ..ecm.secondtrack import flag as track_flag
+from ..ecm.secondtrack import track_name
+from ..ecm.stretches import stretches, track_poses
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
-from ..ecm.trajectory import POOR_FIT
+from ..ecm.trajectory import POOR_FIT, poor_fit_flag
 from ..errors import BvhError, InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
@@ -92,6 +98,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "each frame from the frames beside it where that fits better, without the backward pass (seconds "
                         "to tens of seconds for a few hundred frames, not a second track; motion.bvh, animation.html and --smooth then use it; "
                         "--both-ways does this itself)")
+    p.add_argument("--stretches", action="store_true",
+                   help="with tracks beside (--second-track), also write stretches.csv: each stretch of frames from "
+                        "the track that fits it best over the stretch, changing track where the tracks agree, then on "
+                        "each frame each part (as --both-ways takes them) from the other tracks and from the frames "
+                        "beside it where that fits better (seconds to tens of seconds; motion.bvh, animation.html "
+                        "and --smooth then use it)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -115,7 +127,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
-            "smoothed.csv", "both_ways.csv", "beside.csv")
+            "smoothed.csv", "both_ways.csv", "beside.csv", "stretches.csv")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -252,9 +264,10 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
         # camera both ways was no better (docs/design/tracking-history.md)
         print("note: --both-ways with one camera: the fit that chooses between the two tracks does not see depth, "
               "and on a real walk it did not make the track better (docs/tracking.md)", file=sys.stderr)
-    if args.beside and args.both_ways:
-        print("note: --beside with --both-ways: both_ways.csv already takes the frames beside, so beside.csv is not "
-              "written", file=sys.stderr)
+    if args.beside and (args.both_ways or args.stretches):
+        which = "both_ways.csv" if args.both_ways else "stretches.csv"
+        print(f"note: --beside with --{'both-ways' if args.both_ways else 'stretches'}: {which} already takes the "
+              "frames beside, so beside.csv is not written", file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
@@ -274,8 +287,11 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     if args.both_ways:
         meta |= {"both_ways": True, "both_ways_margin": MARGIN, "both_ways_switch": SWITCH,
                  "both_ways_tolerance": TOLERANCE, "both_ways_parts": list(parts(robot)), "both_ways_sweeps": SWEEPS}
-    if args.beside and not args.both_ways:
+    if args.beside and not args.both_ways and not args.stretches:
         meta |= {"beside": True, "beside_parts": list(parts(robot)), "beside_sweeps": SWEEPS}
+    if args.stretches:
+        meta |= {"stretches": True, "stretches_tracks": 1 + len(tracker.tracks_beside), "stretches_switch": SWITCH,
+                 "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -293,11 +309,12 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
 
 
 def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames,
-                  reacquire) -> tuple[list, Tracker]:
+                  reacquire) -> tuple[list, Tracker, list]:
     """Track every frame, appending trajectory.csv rows and overlay frames as they
-    finish; poses.npz is written also when interrupted.  Returns the results and the
-    tracker of the last frame (a re-acquisition starts a new one)."""
-    video, results = None, []
+    finish; poses.npz is written also when interrupted.  Returns the results, the
+    tracker of the last frame (a re-acquisition starts a new one) and, with --stretches,
+    each frame's :func:`~kms2pin.ecm.stretches.track_poses`."""
+    video, results, tracks = None, [], []
     iterator = range(len(frames.numbers))
     if not args.no_progress:
         from tqdm import tqdm
@@ -319,6 +336,8 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
                 with interrupts_deferred():  # a frame is in every output or in none
                     csv_out.write(frame, r)
                     results.append(r)
+                    if args.stretches:
+                        tracks.append(track_poses(tracker))
                     if not args.no_video:
                         video = _overlay_frame(video, out, args.fps, robot, frames.cameras, masks, r.q,
                                                tracker.scales)
@@ -339,7 +358,7 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
         if results:
             with replaced(out / "poses.npz") as tmp:
                 Trajectory(robot, np.array([r.q for r in results]), results, scales=tracker.scales).to_npz(tmp)
-    return results, tracker
+    return results, tracker, tracks
 
 
 def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scales):
@@ -427,6 +446,35 @@ def _take_beside(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, res
     return bs.q
 
 
+def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
+                    tracks: list) -> np.ndarray:
+    """``--stretches``: stretches.csv, each stretch from the track that fits it best, then
+    the parts (:func:`kms2pin.ecm.stretches.stretches`, the fits at the last frame's body
+    sizes); returns its poses."""
+    n = len(results)
+    st = stretches(tracker, _Masks(frames), np.array(tracks).transpose(1, 0, 2), switch=SWITCH,
+                   tolerance=TOLERANCE, sweeps=SWEEPS, sources=_frame_names(frames, n))
+    beside_flags = {track_flag(t) for t in range(st.fits.shape[1] - 1)}
+    rows = []
+    for k, r in enumerate(results):  # a row's other flags are its online pose's (trajectory.csv)
+        fit = float(st.fit[k])
+        flags = [f for f in r.flags if f not in beside_flags and not f.startswith(POOR_FIT)]
+        flags += [track_flag(st.track[k] - 1)] if st.track[k] else []
+        flags += [f"'{h}' taken from {track_name(t)}" for h, t in zip(st.part_names, st.parts[k]) if t >= 0]
+        flags += [f"'{h}' taken from the frames beside it" for h, t in zip(st.part_names, st.beside[k]) if t]
+        flags += [poor_fit_flag(fit)] if fit < tracker.options.silhouette.poor_fit else []
+        rows.append(dataclasses.replace(r, q=st.q[k].copy(), body_poses=robot.maximal_coordinates(st.q[k]), fit=fit,
+                                        flags=tuple(flags)))
+    with replaced(out / "stretches.csv") as tmp:
+        Trajectory(robot, st.q, rows).to_csv(tmp, frames=frames.numbers[:n])
+    counts = np.bincount(st.track, minlength=st.fits.shape[1])
+    held = ", ".join(f"{track_name(t)}'s on {c}" for t, c in enumerate(counts))
+    print(f"note: --stretches: the pose kept {held} of {n} frames ({int(np.sum(st.track[1:] != st.track[:-1]))} "
+          f"changes of track); a limb's part taken from another track on {int((st.parts >= 0).any(axis=1).sum())} "
+          f"frames and from the frames beside on {int(st.beside.any(axis=1).sum())}", file=sys.stderr)
+    return st.q
+
+
 def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, meta: dict) -> None:
     """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html, motion.bvh (if
     the model can be written as BVH; the last two of ``qs``, smoothed with ``--smooth``) and
@@ -495,6 +543,12 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--smooth {args.smooth:g}: the cutoff must be below half the frame rate "
                          f"(--fps {args.fps:g}: below {args.fps / 2:g} Hz)")
     options = tracker_options(args, SEGMENTED_MASKS if video_mode else None, **fixed)
+    if args.stretches and not track_changes(options.hypotheses.second_track):
+        raise UsageError("--stretches chooses among tracks beside the first, and there are none: give "
+                         "--second-track NAME=VALUE,... (docs/tracking.md)")
+    if args.stretches and args.both_ways:
+        raise UsageError("--stretches with --both-ways: choose one (both ways would track every track "
+                         "backwards too; docs/tracking.md)")
     spec = read_model(args.spec)
     robot = Robot(spec, spec.system(args.system), args.root)
     out = Path(args.output)
@@ -518,9 +572,11 @@ def run(args: argparse.Namespace) -> int:
         from ..ecm.reacquisition import Reacquisition
 
         reacquire = Reacquisition(robot, frames.cameras, q0, reference_fit=init_fit)
-    results, tracker = _track_frames(args, out, robot, tracker, frames, reacquire)
+    results, tracker, tracks = _track_frames(args, out, robot, tracker, frames, reacquire)
     qs = np.array([r.q for r in results])
-    if args.both_ways:
+    if args.stretches:
+        qs = _keep_stretches(out, robot, tracker, frames, results, tracks)
+    elif args.both_ways:
         qs = _track_backwards(args, out, robot, options, frames, results)
     elif args.beside:
         qs = _take_beside(out, robot, tracker, frames, results)

@@ -47,7 +47,7 @@ from .tracker import Tracker
 from .trajectory import FrameResult
 
 __all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "beside", "both_ways", "branching",
-           "choose", "hinges", "parts", "take_beside", "take_parts"]
+           "choose", "choose_tracks", "hinges", "part_scorer", "parts", "take_beside", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
 MARGIN = 0.005
@@ -128,26 +128,54 @@ def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray,
     apart[k + 1]) - tolerance, 0)`` for each change of track between frames k and k + 1
     (``apart``: how far apart the two tracks' poses are, model heights; the change is made
     where they agree more, and is free where they agree within ``tolerance``).  A Viterbi
-    pass over the two tracks, the forward one kept on a tie; with ``switch`` 0 it is the
-    frame-by-frame choice ``fit_backward > fit_forward + margin``."""
-    gain = np.asarray(fit_backward, dtype=float) - np.asarray(fit_forward, dtype=float) - margin
-    n = len(gain)
-    if switch == 0.0 or n == 0:
-        return gain > 0.0
-    step = switch * np.maximum(np.minimum(apart[:-1], apart[1:]) - tolerance, 0.0)
-    cost = [0.0, -gain[0]]  # the least cost of the frames so far ending forward (0) or backward (1)
-    came = np.zeros((n, 2), dtype=bool)  # whether the best way to (frame, track) changed track there
+    pass over the two tracks (:func:`choose_tracks`), the forward one kept on a tie; with
+    ``switch`` 0 it is the frame-by-frame choice ``fit_backward > fit_forward + margin``."""
+    fits = np.stack([np.asarray(fit_forward, dtype=float), np.asarray(fit_backward, dtype=float)], axis=1)
+    far = np.asarray(apart, dtype=float)
+    pair = np.zeros((len(far), 2, 2))
+    pair[:, 0, 1] = pair[:, 1, 0] = far
+    return choose_tracks(fits, pair, switch, tolerance, margins=(0.0, margin)) == 1
+
+
+def choose_tracks(fits: np.ndarray, apart: np.ndarray, switch: float = SWITCH, tolerance: float = TOLERANCE,
+                  margins: Sequence[float] | None = None) -> np.ndarray:
+    """(frames,) the track kept on each frame, of T tracks of the same frames: the choice
+    that maximises the fit kept (``fits`` (frames, T), each track's fit on each frame, less
+    ``margins[t]`` (T,; default 0) on the frames taking track t) less ``switch`` times
+    ``max(min(apart[k, i, j], apart[k + 1, i, j]) - tolerance, 0)`` for each change from
+    track i to track j between frames k and k + 1 (``apart`` (frames, T, T): how far apart
+    the tracks' poses are, model heights, :func:`apart`).  A Viterbi pass over the tracks;
+    on a tie the track held, else the first.  With ``switch`` 0 it is each frame's best
+    track (the first on a tie).  The fits are taken relative to track 0's, so that two tracks are scored with
+    :func:`choose`'s arithmetic exactly."""
+    fits = np.asarray(fits, dtype=float)
+    n, t = fits.shape
+    margin = np.zeros(t) if margins is None else np.asarray(margins, dtype=float)
+    far = np.asarray(apart, dtype=float)
+    if margin.shape != (t,) or far.shape != (n, t, t):
+        raise ValueError(f"for {t} tracks of {n} frames: margins ({t},) and apart ({n}, {t}, {t}), not "
+                         f"{margin.shape} and {far.shape}")
+    gain = fits - fits[:, :1] - margin  # (frames, T): each track's gain over the first, the least cost less it
+    if n == 0:
+        return np.zeros(0, dtype=int)
+    if switch == 0.0:
+        return np.argmax(gain, axis=1)  # the first on a tie
+    step = switch * np.maximum(np.minimum(far[:-1], far[1:]) - tolerance, 0.0)  # (frames - 1, i, j)
+    step[:, np.arange(t), np.arange(t)] = 0.0  # holding a track costs nothing
+    cost = -gain[0].copy()  # (T,): the least cost of the frames so far ending on each track
+    came = np.zeros((n, t), dtype=int)  # the track the best way to (frame, track) came from
     for k in range(1, n):
-        f_stay, f_move = cost[0], cost[1] + step[k - 1]
-        b_stay, b_move = cost[1], cost[0] + step[k - 1]
-        came[k] = (f_move < f_stay, b_move < b_stay)
-        cost = [min(f_stay, f_move), min(b_stay, b_move) - gain[k]]
-    back = np.zeros(n, dtype=bool)
-    s = 1 if cost[1] < cost[0] else 0
+        total = cost[:, None] + step[k - 1]  # from track i (rows) to track j (columns)
+        best = np.argmin(total, axis=0)  # the first on a tie
+        held = total[np.arange(t), np.arange(t)] <= total[best, np.arange(t)]  # the track held on a tie
+        came[k] = np.where(held, np.arange(t), best)
+        cost = total[came[k], np.arange(t)] - gain[k]
+    kept = np.zeros(n, dtype=int)
+    s = int(np.argmin(cost))
     for k in range(n - 1, -1, -1):
-        back[k] = s == 1
-        s = 1 - s if came[k, s] else s
-    return back
+        kept[k] = s
+        s = came[k, s]
+    return kept
 
 
 def hinges(robot: Robot) -> tuple[str, ...]:
@@ -284,7 +312,7 @@ def take_beside(robot: Robot, scorer: Callable[[int], Callable[[np.ndarray], flo
     return q, fit_q, taken
 
 
-def _scorer(tracker: Tracker, masks: Sequence, names: Sequence[str]) -> Callable[[int], Callable[[np.ndarray], float]]:
+def part_scorer(tracker: Tracker, masks: Sequence, names: Sequence[str]) -> Callable[[int], Callable[[np.ndarray], float]]:
     """The scorer :func:`take_parts` and :func:`take_beside` ask once a frame: the fit at
     ``tracker``'s sizes on frame k's masks (read and checked once for all its trials),
     counted from the moved bodies alone (:meth:`Tracker.part_fit`)."""
@@ -308,7 +336,7 @@ def beside(tracker: Tracker, masks: Sequence, q: np.ndarray, *, sweeps: int = SW
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
     fit = np.array([tracker.fit(q[k], masks[k], source=names[k]) for k in range(n)])
 
-    q, fit, taken = take_beside(robot, _scorer(tracker, masks, names), q, fit, sweeps)
+    q, fit, taken = take_beside(robot, part_scorer(tracker, masks, names), q, fit, sweeps)
     return Beside(q, fit, parts(robot), taken)
 
 
@@ -356,7 +384,7 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     q = np.where(back[:, None], backward_q, forward_q)
     other = np.where(back[:, None], forward_q, backward_q)
 
-    scorer = _scorer(tracker, masks, names)
+    scorer = part_scorer(tracker, masks, names)
     q, fit_q, taken = take_parts(robot, scorer, q, other, np.where(back, fit_b, fit_f))
     q, fit_q, beside = take_beside(robot, scorer, q, fit_q, sweeps)
     return BothWays(q, back, fit_f, fit_b, far, results, fit_q, parts(robot), taken, beside)

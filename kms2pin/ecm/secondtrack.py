@@ -22,16 +22,22 @@ from .trajectory import POOR_FIT, FrameResult, poor_fit_flag
 if TYPE_CHECKING:
     from .tracker import Tracker
 
-__all__ = ["FLAG", "better", "flag"]
+__all__ = ["FLAG", "better", "flag", "track_name"]
 
 #: how a frame taken from the second track is flagged (a third: :func:`flag`)
 FLAG = "from the second track"
-_ORDINALS = ("second", "third", "fourth", "fifth")
+_ORDINALS = ("first", "second", "third", "fourth", "fifth")
+
+
+def track_name(t: int) -> str:
+    """Track ``t``'s name in flags and notes: ``"the first track"`` (0, the tracker's own),
+    ``"the second track"`` (1, the first beside it), ..."""
+    return f"the {_ORDINALS[t]} track" if t < len(_ORDINALS) else f"track {t + 1}"
 
 
 def flag(k: int) -> str:
     """The flag of a frame taken from track ``k`` beside the first (0: the second track)."""
-    return f"from the {_ORDINALS[k]} track" if k < len(_ORDINALS) else f"from track {k + 2}"
+    return f"from {track_name(k + 1)}"
 
 
 def better(tracker: Tracker, res: FrameResult, others: Sequence[FrameResult], masks, source: str) -> FrameResult:

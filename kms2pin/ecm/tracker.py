@@ -294,6 +294,11 @@ class Tracker:
         self.state.q = value
 
     @property
+    def tracks_beside(self) -> tuple[Tracker, ...]:
+        """The trackers of the tracks beside (``second_track``), each going on by itself."""
+        return tuple(self._beside)
+
+    @property
     def frame(self) -> int:
         """Frames tracked since the start (or the last :meth:`restart`)."""
         return self.state.frame

@@ -21,6 +21,7 @@ from kms2pin.ecm.bothways import (
     both_ways,
     branching,
     choose,
+    choose_tracks,
     hinges,
     parts,
     take_beside,
@@ -110,6 +111,49 @@ def test_the_choice_is_the_least_cost_of_every_choice(seed):
     gain, step = fit_b - fit_f - margin, switch * np.clip(np.minimum(far[:-1], far[1:]) - tol, 0.0, None)
     cost = -gain[back].sum() + step[back[:-1] != back[1:]].sum()
     assert cost == pytest.approx(_brute_force(gain, step), abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_the_choice_among_tracks_is_the_least_cost_of_every_choice(seed):
+    # three or four tracks of up to 6 frames: every one of the T**n choices enumerated
+    import itertools
+
+    rng = np.random.default_rng(100 + seed)
+    n, t = int(rng.integers(1, 7)), int(rng.integers(3, 5))
+    fits = rng.uniform(0.5, 0.7, (n, t))
+    far = rng.uniform(0.0, 0.3, (n, t, t)) * (rng.random((n, t, t)) < 0.7)
+    far = np.triu(far, 1) + np.transpose(np.triu(far, 1), (0, 2, 1))  # symmetric, 0 on the diagonal
+    switch, tol = float(rng.uniform(0.05, 1.0)), float(rng.choice([0.0, TOLERANCE, 0.1]))
+    margins = rng.uniform(0.0, 0.01, t)
+
+    def cost(path) -> float:
+        total = -sum(fits[k, path[k]] - margins[path[k]] for k in range(n))
+        return total + sum(switch * max(min(far[k, path[k], path[k + 1]], far[k + 1, path[k], path[k + 1]]) - tol, 0.0)
+                           for k in range(n - 1))
+
+    kept = choose_tracks(fits, far, switch, tol, margins)
+    assert kept.shape == (n,) and kept.dtype.kind == "i"
+    assert cost(kept) == pytest.approx(min(cost(p) for p in itertools.product(range(t), repeat=n)), abs=1e-12)
+
+
+def test_the_choice_among_two_tracks_is_the_both_ways_choice():
+    rng = np.random.default_rng(3)
+    fit_f, fit_b, far = rng.uniform(0.5, 0.7, 300), rng.uniform(0.5, 0.7, 300), rng.uniform(0, 0.05, 300)
+    pair = np.zeros((300, 2, 2))
+    pair[:, 0, 1] = pair[:, 1, 0] = far
+    kept = choose_tracks(np.stack([fit_f, fit_b], axis=1), pair, SWITCH, TOLERANCE, (0.0, MARGIN))
+    assert np.array_equal(kept == 1, choose(fit_f, fit_b, far, MARGIN, SWITCH, TOLERANCE))
+    # without a switch cost: each frame's best track, the first on a tie
+    fits = rng.uniform(0.5, 0.7, (300, 4))
+    fits[::7, 2] = fits[::7, 1]
+    assert np.array_equal(choose_tracks(fits, np.zeros((300, 4, 4)), 0.0), np.argmax(fits, axis=1))
+
+
+def test_the_choice_among_tracks_refuses_mismatched_shapes():
+    with pytest.raises(ValueError, match="apart"):
+        choose_tracks(np.zeros((5, 3)), np.zeros((5, 2, 2)))
+    with pytest.raises(ValueError, match="margins"):
+        choose_tracks(np.zeros((5, 3)), np.zeros((5, 3, 3)), margins=(0.0, 0.0))
 
 
 def test_without_a_switch_cost_each_frame_is_chosen_on_its_own():
