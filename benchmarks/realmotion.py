@@ -35,7 +35,9 @@ What is measured (docs/benchmarks.md, "Real human motion"):
   knees' and the elbows' apart; the same for the track smoothed offline (``track --smooth``
   at :data:`SMOOTH_HZ`, :mod:`kms2pin.ecm.smoothing`); frames/s; with one camera the error split along the
   camera's rays (the depth one view hardly sees) and across them
-  (:func:`kms2pin.ecm.evaluate.ray_parts`).
+  (:func:`kms2pin.ecm.evaluate.ray_parts`); with tracks beside (``--option
+  second_track=...``) the same for each stretch taken from the track that fits it best
+  (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw and smoothed.
 - **References**: the *floor*, the model's configuration nearest the subject's true joint
   points on each frame (:func:`floor_poses`: what the model can express at best; here the
   import's own angles, exact at the 13 joints, checked); *ECM from the floor*,
@@ -81,7 +83,7 @@ from kms2pin.ecm.evaluate import ray_parts  # noqa: E402
 from kms2pin.ecm.limbs import hinged_bodies, sides  # noqa: E402
 from kms2pin.ecm.options import OPTION_GROUP  # noqa: E402
 from kms2pin.ecm.smoothing import smooth  # noqa: E402
-from kms2pin.ecm.stretches import track_poses  # noqa: E402
+from kms2pin.ecm.stretches import stretches, track_poses  # noqa: E402
 from kms2pin.ecm.synth import synthesize  # noqa: E402
 from kms2pin.lang import parse_text  # noqa: E402
 from kms2pin.robot import Robot  # noqa: E402
@@ -441,7 +443,8 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     cameras = rig(seq.path, n, factor)
     truth = np.array([points(seq.subject, q, JOINTS) for q in seq.q])
     masks = rendered(seq.subject, seq.q, cameras, "capsule", seed, cache)
-    q, fps, flags, tracker = track(seq, cameras, masks, options)
+    tracks = [] if options.get("second_track") else None
+    q, fps, flags, tracker = track(seq, cameras, masks, options, tracks=tracks)
     err = joint_errors(seq.model, q, truth)
     flex_true = flexion(truth)
 
@@ -463,6 +466,15 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     err_smooth = joint_errors(seq.model, q_smooth, truth)
     print(f"{name:16s} smoothed {SMOOTH_HZ:g} Hz  | {summary(err_smooth, flex_rmse(q_smooth))}", flush=True)
     row |= {"smoothed": err_smooth.mean(), "flexion_smoothed": flex_rmse(q_smooth)}
+    if tracks is not None:  # tracks beside: each stretch from the track that fits it best (track --stretches)
+        st = stretches(tracker, masks, np.array(tracks).transpose(1, 0, 2))
+        err_st = joint_errors(seq.model, st.q, truth)
+        print(f"{name:16s} stretches      | {summary(err_st, flex_rmse(st.q))} | "
+              f"{int(np.sum(st.track[1:] != st.track[:-1]))} changes of track", flush=True)
+        q_st = smooth(seq.model, st.q, FPS, SMOOTH_HZ)
+        print(f"{name:16s} stretches {SMOOTH_HZ:g} Hz | {summary(joint_errors(seq.model, q_st, truth), flex_rmse(q_st))}",
+              flush=True)
+        row |= {"stretches": err_st.mean()}
     if n == 1:  # one view: how much of the error is depth
         along, side = ray_parts(np.array([points(seq.model, x, JOINTS) for x in q]), truth, cameras[0].centre)
         depth, across = np.abs(along).mean(axis=1) * 1e3, side.mean(axis=1) * 1e3
