@@ -467,7 +467,7 @@ def run_case(name: str, seq: Sequence, seed: int, cache: Path | None, references
     print(f"{name:16s} smoothed {SMOOTH_HZ:g} Hz  | {summary(err_smooth, flex_rmse(q_smooth))}", flush=True)
     row |= {"smoothed": err_smooth.mean(), "flexion_smoothed": flex_rmse(q_smooth)}
     if tracks is not None:  # tracks beside: each stretch from the track that fits it best (track --stretches)
-        st = stretches(tracker, masks, np.array(tracks).transpose(1, 0, 2))
+        st = stretches(tracker, masks, np.array(tracks))
         err_st = joint_errors(seq.model, st.q, truth)
         print(f"{name:16s} stretches      | {summary(err_st, flex_rmse(st.q))} | "
               f"{int(np.sum(st.track[1:] != st.track[:-1]))} changes of track", flush=True)

@@ -90,7 +90,7 @@ def track_seed(job: tuple) -> dict:
         row |= {"beside_smoothed": err_x.mean(), "elbows2_beside": (flex_x[:, 2:] ** 2).mean(),
                 "knees2_beside": (flex_x[:, :2] ** 2).mean(), "beside_only_frames": float(bs.taken.any(axis=1).mean())}
     if tracks is not None:  # --stretches: each stretch from the track that fits it best, then the parts
-        st = stretches(tracker, masks, np.array(tracks).transpose(1, 0, 2))
+        st = stretches(tracker, masks, np.array(tracks))
         err_t, flex_t = scored(st.q)
         err_ts, flex_ts = smoothed(st.q)
         whole = np.array(tracks)[np.arange(len(masks)), st.track]
@@ -162,6 +162,14 @@ def _beside(rows: list[dict], smoothed: np.ndarray) -> str:
             f"{np.sqrt(np.mean([r['elbows2_beside'] for r in rows])):.1f} deg")
 
 
+def _against(x: np.ndarray, base: np.ndarray, digits: int) -> str:
+    """The seeds' ``x`` against ``base``, paired: the mean difference, its standard error, and
+    on how many seeds ``x`` is lower."""
+    d = x - base
+    se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.{digits}f}" if len(d) > 1 else ""
+    return f"{d.mean():+.{digits}f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}"
+
+
 def _both(rows: list[dict], means: np.ndarray) -> str:
     """The ``--both-ways`` line of :func:`report` (empty without it)."""
     if "both_ways" not in rows[0]:
@@ -171,9 +179,7 @@ def _both(rows: list[dict], means: np.ndarray) -> str:
     whole = np.array([r["both_whole_smoothed"] for r in rows])
 
     def against(x: np.ndarray) -> str:
-        d = x - means
-        se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.1f}" if len(d) > 1 else ""
-        return f"{d.mean():+.1f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}"
+        return _against(x, means, 1)
 
     return (f"\n    both ways (track --both-ways): mean {both.mean():.1f} mm, median {np.median(both):.1f} (the backward "
             f"pose kept on {np.median([r['backward'] for r in rows]):.0%} of the frames, median; worst frame "
@@ -202,9 +208,7 @@ def _stretches(rows: list[dict], means: np.ndarray, smoothed: np.ndarray) -> str
         return np.array([r[key] for r in rows])
 
     def against(x: np.ndarray, base: np.ndarray) -> str:
-        d = x - base
-        se = f" +- {d.std(ddof=1) / np.sqrt(len(d)):.2f}" if len(d) > 1 else ""
-        return f"{d.mean():+.2f}{se} mm, better on {int(np.sum(d < 0))} of {len(d)}"
+        return _against(x, base, 2)
 
     def rms(key: str) -> float:
         return float(np.sqrt(np.mean(col(key))))
@@ -278,6 +282,8 @@ def main() -> None:
     sets = {"preset": options}
     if a.variant:
         sets["variant"] = {**options, **rm.parse_options(rm.split_items(a.variant), "--variant", p.error)}
+    if a.stretches and not any(opts.get("second_track") for opts in sets.values()):
+        p.error("--stretches chooses among tracks beside: give second_track in --option or --variant")
     jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside, a.stretches) for name in names for opts in sets.values()
             for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:

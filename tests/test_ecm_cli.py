@@ -635,18 +635,18 @@ def test_beside_writes_the_track_with_parts_from_the_frames_beside_and_smooth_us
 
 
 def test_stretches_writes_each_stretch_from_the_track_that_fits_it_and_smooth_uses_it(tmp_path, cams2, capsys):
-    """``--stretches`` with a track beside (one ECM iteration a frame beside the full
-    tracker): stretches.csv (every frame, numbered as trajectory.csv), each row one track's
-    pose (the second's flagged) or with parts taken from a track or the frames beside (flagged
-    with their names), every row's fit its own pose's; the note counts them; ``--smooth`` then
-    smooths it; ``evaluate --stretches`` scores it."""
+    """``--stretches`` with a track beside (a first track held near its starting pose by a
+    stiff rest prior, a second without it, which the masks follow): stretches.csv (every
+    frame, numbered as trajectory.csv), each row one track's pose (the second's flagged) or
+    with parts taken from a track or the frames beside (flagged with their names); the note
+    counts them; ``--smooth`` then smooths it; ``evaluate --stretches`` scores it."""
     masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
     out = tmp_path / "out"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--stretches",
-                 "--second-track", "max_iterations=1,min_iterations=1", "--smooth", "6", "-o", str(out)]) == 0
+                 "--rest-prior", "10", "--second-track", "rest_prior=0", "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
-    note = re.search(r"--stretches: the pose kept the first track's on (\d+), the second track's on (\d+) of 10 "
-                     r"frames \((\d+) changes of track\); a limb's part taken from another track on (\d+) frames "
+    note = re.search(r"--stretches: the poses of 10 frames: (\d+) from the first track, (\d+) from the second track "
+                     r"\((\d+) changes of track\); a limb's part taken from another track on (\d+) frames "
                      r"and from the frames beside on (\d+)", err)
     assert note, err
     meta = json.loads((out / "meta.json").read_text())
@@ -658,7 +658,7 @@ def test_stretches_writes_each_stretch_from_the_track_that_fits_it_and_smooth_us
     kept = Trajectory.from_csv(robot, out / "stretches.csv").q
     rows = (out / "stretches.csv").read_text().splitlines()[1:]
     assert [r.split(",")[0] for r in rows] == [str(k) for k in range(10)]
-    assert int(note[1]) + int(note[2]) == 10
+    assert int(note[1]) + int(note[2]) == 10 and int(note[2]) >= 5  # the track that follows the masks, mostly
     assert int(note[2]) == sum("from the second track" in r.split("' taken")[0] for r in rows)
     assert int(note[4]) == sum("' taken from the first track" in r or "' taken from the second track" in r for r in rows)
     assert int(note[5]) == sum("' taken from the frames beside it" in r for r in rows)

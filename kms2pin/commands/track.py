@@ -97,7 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also write beside.csv, the track with each part (as --both-ways takes them) taken on "
                         "each frame from the frames beside it where that fits better, without the backward pass (seconds "
                         "to tens of seconds for a few hundred frames, not a second track; motion.bvh, animation.html and --smooth then use it; "
-                        "--both-ways does this itself)")
+                        "--both-ways and --stretches do this themselves)")
     p.add_argument("--stretches", action="store_true",
                    help="with tracks beside (--second-track), also write stretches.csv: each stretch of frames from "
                         "the track that fits it best over the stretch, changing track where the tracks agree, then on "
@@ -452,7 +452,7 @@ def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, 
     the parts (:func:`kms2pin.ecm.stretches.stretches`, the fits at the last frame's body
     sizes); returns its poses."""
     n = len(results)
-    st = stretches(tracker, _Masks(frames), np.array(tracks).transpose(1, 0, 2), switch=SWITCH,
+    st = stretches(tracker, _Masks(frames), np.array(tracks), switch=SWITCH,
                    tolerance=TOLERANCE, sweeps=SWEEPS, sources=_frame_names(frames, n))
     beside_flags = {track_flag(t) for t in range(st.fits.shape[1] - 1)}
     rows = []
@@ -462,14 +462,14 @@ def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, 
         flags += [track_flag(st.track[k] - 1)] if st.track[k] else []
         flags += [f"'{h}' taken from {track_name(t)}" for h, t in zip(st.part_names, st.parts[k]) if t >= 0]
         flags += [f"'{h}' taken from the frames beside it" for h, t in zip(st.part_names, st.beside[k]) if t]
-        flags += [poor_fit_flag(fit)] if fit < tracker.options.silhouette.poor_fit else []
+        flags += [poor_fit_flag(fit)] if r.iterations and fit < tracker.options.silhouette.poor_fit else []
         rows.append(dataclasses.replace(r, q=st.q[k].copy(), body_poses=robot.maximal_coordinates(st.q[k]), fit=fit,
                                         flags=tuple(flags)))
     with replaced(out / "stretches.csv") as tmp:
         Trajectory(robot, st.q, rows).to_csv(tmp, frames=frames.numbers[:n])
     counts = np.bincount(st.track, minlength=st.fits.shape[1])
-    held = ", ".join(f"{track_name(t)}'s on {c}" for t, c in enumerate(counts))
-    print(f"note: --stretches: the pose kept {held} of {n} frames ({int(np.sum(st.track[1:] != st.track[:-1]))} "
+    held = ", ".join(f"{c} from {track_name(t)}" for t, c in enumerate(counts))
+    print(f"note: --stretches: the poses of {n} frames: {held} ({int(np.sum(st.track[1:] != st.track[:-1]))} "
           f"changes of track); a limb's part taken from another track on {int((st.parts >= 0).any(axis=1).sum())} "
           f"frames and from the frames beside on {int(st.beside.any(axis=1).sum())}", file=sys.stderr)
     return st.q

@@ -145,9 +145,10 @@ def choose_tracks(fits: np.ndarray, apart: np.ndarray, switch: float = SWITCH, t
     ``max(min(apart[k, i, j], apart[k + 1, i, j]) - tolerance, 0)`` for each change from
     track i to track j between frames k and k + 1 (``apart`` (frames, T, T): how far apart
     the tracks' poses are, model heights, :func:`apart`).  A Viterbi pass over the tracks;
-    on a tie the track held, else the first.  With ``switch`` 0 it is each frame's best
-    track (the first on a tie).  The fits are taken relative to track 0's, so that two tracks are scored with
-    :func:`choose`'s arithmetic exactly."""
+    on a tie the last frame takes the first of the tracks tied, and each frame before it,
+    going back, the track held where holding it ties.  With ``switch`` 0 it is each frame's
+    best track (the first on a tie).  The fits are taken relative to track 0's, so that two
+    tracks are scored with :func:`choose`'s arithmetic exactly."""
     fits = np.asarray(fits, dtype=float)
     n, t = fits.shape
     margin = np.zeros(t) if margins is None else np.asarray(margins, dtype=float)
@@ -155,6 +156,10 @@ def choose_tracks(fits: np.ndarray, apart: np.ndarray, switch: float = SWITCH, t
     if margin.shape != (t,) or far.shape != (n, t, t):
         raise ValueError(f"for {t} tracks of {n} frames: margins ({t},) and apart ({n}, {t}, {t}), not "
                          f"{margin.shape} and {far.shape}")
+    if not (np.isfinite(fits).all() and np.isfinite(margin).all() and np.isfinite(far).all()):
+        raise ValueError("the fits, margins and distances must be finite")
+    if switch < 0 or tolerance < 0:
+        raise ValueError(f"switch and tolerance must be 0 or more, not {switch} and {tolerance}")
     gain = fits - fits[:, :1] - margin  # (frames, T): each track's gain over the first, the least cost less it
     if n == 0:
         return np.zeros(0, dtype=int)

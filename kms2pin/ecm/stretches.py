@@ -11,9 +11,10 @@ most fit gained less :data:`~kms2pin.ecm.bothways.SWITCH` times how far apart th
 are at each change of track (free where they agree within
 :data:`~kms2pin.ecm.bothways.TOLERANCE`), a Viterbi pass over all the tracks
 (:func:`~kms2pin.ecm.bothways.choose_tracks`).  Then, as ``both_ways`` does with its two
-tracks, each part (every joint but the root, with the joints below it) is taken on each frame
-from the other tracks where that fits better (:func:`~kms2pin.ecm.bothways.take_parts`), and
-last from the frames beside (:func:`~kms2pin.ecm.bothways.take_beside`).
+tracks, each part (every joint but the root and those with a branch below them, with the
+joints below it) is taken on each frame from the other tracks where that fits better
+(:func:`~kms2pin.ecm.bothways.take_parts`), and last each part from the frames beside
+(:func:`~kms2pin.ecm.bothways.take_beside`).
 """
 
 from __future__ import annotations
@@ -39,9 +40,9 @@ class Stretches:
         fits: (frames, tracks) each track's fit (IoU) on each frame, at the tracker's body sizes.
         fit: (frames,) the fit of :attr:`q`.
         part_names: the joints tried (:func:`~kms2pin.ecm.bothways.parts`), in tree order.
-        parts: (frames, len(part_names)) the track that joint and the joints below it were
-            taken from (:func:`~kms2pin.ecm.bothways.take_parts`; the last one, if several), -1
-            where none.
+        parts: (frames, len(part_names)) the last track that joint was taken from, with the
+            joints below it (:func:`~kms2pin.ecm.bothways.take_parts`), -1 where none (a part
+            taken later above it takes it again, from that part's track).
         beside: (frames, len(part_names)) True where that joint and the joints below it were
             then taken from the frames beside (:func:`~kms2pin.ecm.bothways.take_beside`).
     """
@@ -64,17 +65,16 @@ def track_poses(tracker: Tracker) -> np.ndarray:
 def apart_tracks(tracker: Tracker, tracks: np.ndarray) -> np.ndarray:
     """(frames, tracks, tracks) how far apart each two tracks' poses are on each frame: the
     mean distance between their body centres, in model heights (as
-    :func:`~kms2pin.ecm.bothways.apart`); ``tracks`` (tracks, frames, nq)."""
+    :func:`~kms2pin.ecm.bothways.apart`); ``tracks`` (frames, tracks, nq)."""
     robot = tracker.robot
-    centres = np.array([[robot.body_pose_arrays(x)[1] for x in q] for q in tracks])  # (tracks, frames, bodies, 3)
-    far = np.linalg.norm(centres[:, None] - centres[None, :], axis=-1).mean(axis=-1) / robot.height
-    return far.transpose(2, 0, 1)
+    centres = np.array([[robot.body_pose_arrays(x)[1] for x in frame] for frame in tracks])  # frames, tracks, bodies, 3
+    return np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1).mean(axis=-1) / robot.height
 
 
 def stretches(tracker: Tracker, masks: Sequence, tracks: np.ndarray, *, switch: float = SWITCH,
               tolerance: float = TOLERANCE, sweeps: int = SWEEPS, sources: Sequence[str] | None = None) -> Stretches:
-    """Of ``tracks`` (tracks, frames, nq; each track's own poses, :func:`track_poses` after
-    each frame) of ``masks`` (a sequence of frames, each one mask per camera), the pose of
+    """Of ``tracks`` (frames, tracks, nq; each track's own poses, :func:`track_poses` after
+    each frame, stacked) of ``masks`` (a sequence of frames, each one mask per camera), the pose of
     the track kept on each frame by :func:`~kms2pin.ecm.bothways.choose_tracks` (``switch``
     and ``tolerance`` as there, no margin), then each part taken from the other tracks and
     from the frames beside where that fits better (module docstring; ``sweeps`` as in
@@ -83,21 +83,18 @@ def stretches(tracker: Tracker, masks: Sequence, tracks: np.ndarray, *, switch: 
     ``sources`` names each frame in error messages (default ``"frame k"``)."""
     tracks = np.asarray(tracks, dtype=float)
     n, robot = len(masks), tracker.robot
-    if tracks.ndim != 3 or tracks.shape[1:] != (n, robot.nq) or not len(tracks):
-        raise ValueError(f"tracks must have shape (tracks, {n}, {robot.nq}) (each track's pose on each frame), "
+    if tracks.ndim != 3 or tracks.shape[0] != n or tracks.shape[2] != robot.nq or not tracks.shape[1]:
+        raise ValueError(f"tracks must have shape ({n}, tracks, {robot.nq}) (each track's pose on each frame), "
                          f"not {tracks.shape}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
-    fits = np.empty((n, len(tracks)))
-    for k in range(n):
-        for t, q in enumerate(tracks[:, k]):
-            fits[k, t] = tracker.fit(q, masks[k], source=names[k])
+    fits = np.array([[tracker.fit(q, masks[k], source=names[k]) for q in tracks[k]] for k in range(n)])
     kept = choose_tracks(fits, apart_tracks(tracker, tracks), switch, tolerance)
     frames = np.arange(n)
-    q, fit = tracks[kept, frames], fits[frames, kept]
+    q, fit = tracks[frames, kept], fits[frames, kept]
     scorer = part_scorer(tracker, masks, names)
     taken = np.full((n, len(parts(robot))), -1)
-    for t, other in enumerate(tracks):  # a frame's own track gives nothing new: its trials are skipped
-        q, fit, took = take_parts(robot, scorer, q, other, fit)
+    for t in range(tracks.shape[1]):  # not from a frame's own track: there the trials are q itself, skipped
+        q, fit, took = take_parts(robot, scorer, q, np.where((kept == t)[:, None], q, tracks[:, t]), fit)
         taken[took] = t
     q, fit, beside = take_beside(robot, scorer, q, fit, sweeps)
     return Stretches(q, kept, fits, fit, parts(robot), taken, beside)

@@ -43,7 +43,7 @@ def test_a_lost_track_that_fits_best_on_one_frame_is_not_taken_there(scene):
     masks = [render(robot, q, cams) for q in qs]
     masks[9] = render(robot, _shifted(qs, [9], 0.5)[9], cams)
     tracker = Tracker(robot, cams, q0=qs[0])
-    st = stretches(tracker, masks, np.stack([qs, lost]), sweeps=0)  # frame 9 alone: not from the frames beside
+    st = stretches(tracker, masks, np.stack([qs, lost], axis=1), sweeps=0)  # frame 9 alone: not from the frames beside
     # the fits are each pose's IoU at the tracker's sizes, computed here from the silhouettes
     for k in (0, 9, 12):
         for t, q in enumerate((qs[k], lost[k])):
@@ -69,7 +69,7 @@ def test_a_limb_one_track_lost_is_taken_from_another_track_that_holds_it(scene):
     lost = _shifted(qs, slice(2, 16), 0.8)
     masks = [render(robot, q, cams) for q in qs]
     tracker = Tracker(robot, cams, q0=qs[0])
-    st = stretches(tracker, masks, np.stack([bent, lost]), sweeps=0)
+    st = stretches(tracker, masks, np.stack([bent, lost], axis=1), sweeps=0)
     assert not st.track.any()
     h = st.part_names.index(knee.name)
     assert (st.parts[4:9, h] == 1).all() and (st.parts[9:16] == -1).all()
@@ -84,7 +84,7 @@ def test_a_stretch_one_track_lost_is_taken_from_the_other_whichever_comes_first(
     masks = [render(robot, q, cams) for q in qs]
     tracker = Tracker(robot, cams, q0=qs[0])
     for order in ((lost, qs, lost), (qs, lost, lost)):
-        st = stretches(tracker, masks, np.stack(order))
+        st = stretches(tracker, masks, np.stack(order, axis=1))
         true_track = 0 if order[0] is qs else 1
         assert (st.track[6:13] == true_track).all()  # the lost stretch from the held track
         np.testing.assert_array_equal(st.q[6:13], qs[6:13])
@@ -96,7 +96,7 @@ def test_apart_tracks_is_apart_for_each_pair(scene):
     robot, qs, cams = scene
     lost = _shifted(qs, slice(3, 8), 0.2)
     tracker = Tracker(robot, cams, q0=qs[0])
-    far = apart_tracks(tracker, np.stack([qs, lost, qs]))
+    far = apart_tracks(tracker, np.stack([qs, lost, qs], axis=1))
     assert far.shape == (len(qs), 3, 3)
     np.testing.assert_allclose(far[:, 0, 1], apart(robot, qs, lost), atol=1e-12)
     np.testing.assert_allclose(far[:, 1, 0], far[:, 0, 1], atol=1e-12)
@@ -120,12 +120,12 @@ def test_each_track_goes_on_by_itself_and_its_poses_are_the_tracks_alone(scene):
         both.step(m)
         poses.append(track_poses(both))
         np.testing.assert_array_equal(poses[-1], [t.q for t in alone])
-    tracks = np.array(poses).transpose(1, 0, 2)
+    tracks = np.array(poses)
     st = stretches(both, masks, tracks)
     frames = np.arange(len(masks))
     whole = (st.parts == -1).all(axis=1) & ~st.beside.any(axis=1)  # no part taken: the kept track's pose
     assert whole.any()
-    np.testing.assert_array_equal(st.q[whole], tracks[st.track, frames][whole])
+    np.testing.assert_array_equal(st.q[whole], tracks[frames, st.track][whole])
     assert (st.fit >= st.fits[frames, st.track] - 1e-12).all()  # a part is taken only where it fits better
 
 
@@ -133,6 +133,6 @@ def test_the_tracks_must_have_a_pose_per_frame(scene):
     robot, qs, cams = scene
     tracker = Tracker(robot, cams, q0=qs[0])
     masks = [render(robot, q, cams) for q in qs[:3]]
-    for bad in (qs[:3], np.stack([qs[:2], qs[:2]]), np.zeros((0, 3, robot.nq))):
+    for bad in (qs[:3], np.stack([qs[:2], qs[:2]], axis=1), np.zeros((3, 0, robot.nq)), np.stack([qs[:3], qs[:3]])):
         with pytest.raises(ValueError, match="each track's pose on each frame"):
             stretches(tracker, masks, bad)
