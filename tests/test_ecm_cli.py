@@ -700,6 +700,15 @@ def test_evaluate_both_ways_without_that_track_says_how_to_make_it(tracked, caps
     assert "no both_ways.csv (written by kms2pin track --both-ways)" in capsys.readouterr().err
 
 
+def test_stretches_with_one_camera_notes_that_the_fit_does_not_see_depth(tmp_path, capsys):
+    masks = _synth(tmp_path, frames=3)
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--stretches",
+                 "--second-track", "rest_prior=0.01", "-o", str(tmp_path / "out")]) == 0
+    assert "note: --stretches with one camera: the fit that chooses among the tracks does not see depth" \
+        in capsys.readouterr().err
+    assert (tmp_path / "out" / "stretches.csv").is_file()
+
+
 def test_both_ways_with_one_camera_notes_that_the_fit_does_not_see_depth(tmp_path, capsys):
     masks = _synth(tmp_path, frames=3)
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--both-ways",

@@ -259,6 +259,10 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
         priors = "--upright 0.1 holds" if robot.has_limits else "--upright 0.1 --rest-prior 0.01 hold"
         print(f"note: one camera: for a person walking or standing, {priors} what one view does not fix "
               "(not for a hand; docs/tracking.md); for a real person, --preset people-one-camera", file=sys.stderr)
+    if n_cameras == 1 and args.stretches:
+        # the tracks' fits do not see depth: on the real walk with one camera no better (tracking-history.md)
+        print("note: --stretches with one camera: the fit that chooses among the tracks does not see depth, "
+              "and on a real walk it did not make the track better (docs/tracking.md)", file=sys.stderr)
     if n_cameras == 1 and args.both_ways:
         # the better-fitting pose is not the nearer one in depth: on the real walk with one
         # camera both ways was no better (docs/design/tracking-history.md)
