@@ -90,10 +90,11 @@ def track_seed(job: tuple) -> dict:
         row |= {"beside_smoothed": err_x.mean(), "elbows2_beside": (flex_x[:, 2:] ** 2).mean(),
                 "knees2_beside": (flex_x[:, :2] ** 2).mean(), "beside_only_frames": float(bs.taken.any(axis=1).mean())}
     if tracks is not None:  # --stretches: each stretch from the track that fits it best, then the parts
-        st = stretches(tracker, masks, np.array(tracks))
+        tracks = np.array(tracks)
+        st = stretches(tracker, masks, tracks)
         err_t, flex_t = scored(st.q)
         err_ts, flex_ts = smoothed(st.q)
-        whole = np.array(tracks)[np.arange(len(masks)), st.track]
+        whole = tracks[np.arange(len(masks)), st.track]
         row |= {"stretches": err_t.mean(), "worst_stretches": err_t.mean(axis=1).max(),
                 "over120_stretches": int(np.sum(err_t.mean(axis=1) > 120.0)), "stretches_smoothed": err_ts.mean(),
                 "worst_stretches_smoothed": err_ts.mean(axis=1).max(),

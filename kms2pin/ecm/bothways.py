@@ -46,7 +46,7 @@ from .options import Preset, TrackerOptions
 from .tracker import Tracker
 from .trajectory import FrameResult
 
-__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "beside", "both_ways", "branching",
+__all__ = ["MARGIN", "SWEEPS", "SWITCH", "TOLERANCE", "Beside", "BothWays", "apart", "apart_tracks", "beside", "both_ways", "branching",
            "choose", "choose_tracks", "hinges", "part_scorer", "parts", "take_beside", "take_parts"]
 
 #: the IoU by which the backward pose must fit better, a frame, to be kept (docs/design/tracking-history.md)
@@ -114,10 +114,14 @@ class Beside:
 def apart(robot: Robot, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     """(frames,) the mean distance between the body centres of ``robot`` at ``qa`` and at
     ``qb`` (each (frames, nq)), frame by frame, in model heights."""
-    def centres(q: np.ndarray) -> np.ndarray:
-        return np.array([robot.body_pose_arrays(x)[1] for x in q])
+    return apart_tracks(robot, np.stack([qa, qb], axis=1))[:, 0, 1]
 
-    return np.linalg.norm(centres(qa) - centres(qb), axis=2).mean(axis=1) / robot.height
+
+def apart_tracks(robot: Robot, tracks: np.ndarray) -> np.ndarray:
+    """(frames, tracks, tracks) :func:`apart` for each two of ``tracks`` (frames, tracks, nq;
+    several tracks of the same frames), frame by frame, in model heights."""
+    centres = np.array([[robot.body_pose_arrays(x)[1] for x in frame] for frame in tracks])  # frames, tracks, bodies, 3
+    return np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1).mean(axis=-1) / robot.height
 
 
 def choose(fit_forward: np.ndarray, fit_backward: np.ndarray, apart: np.ndarray, margin: float = MARGIN,

@@ -24,10 +24,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bothways import SWEEPS, SWITCH, TOLERANCE, choose_tracks, part_scorer, parts, take_beside, take_parts
+from .bothways import (
+    SWEEPS,
+    SWITCH,
+    TOLERANCE,
+    apart_tracks,
+    choose_tracks,
+    part_scorer,
+    parts,
+    take_beside,
+    take_parts,
+)
 from .tracker import Tracker
 
-__all__ = ["Stretches", "apart_tracks", "stretches", "track_poses"]
+__all__ = ["Stretches", "stretches", "track_poses"]
 
 
 @dataclass(frozen=True)
@@ -62,15 +72,6 @@ def track_poses(tracker: Tracker) -> np.ndarray:
     return np.array([tracker.q, *(other.q for other in tracker.tracks_beside)])
 
 
-def apart_tracks(tracker: Tracker, tracks: np.ndarray) -> np.ndarray:
-    """(frames, tracks, tracks) how far apart each two tracks' poses are on each frame: the
-    mean distance between their body centres, in model heights (as
-    :func:`~kms2pin.ecm.bothways.apart`); ``tracks`` (frames, tracks, nq)."""
-    robot = tracker.robot
-    centres = np.array([[robot.body_pose_arrays(x)[1] for x in frame] for frame in tracks])  # frames, tracks, bodies, 3
-    return np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1).mean(axis=-1) / robot.height
-
-
 def stretches(tracker: Tracker, masks: Sequence, tracks: np.ndarray, *, switch: float = SWITCH,
               tolerance: float = TOLERANCE, sweeps: int = SWEEPS, sources: Sequence[str] | None = None) -> Stretches:
     """Of ``tracks`` (frames, tracks, nq; each track's own poses, :func:`track_poses` after
@@ -87,8 +88,11 @@ def stretches(tracker: Tracker, masks: Sequence, tracks: np.ndarray, *, switch: 
         raise ValueError(f"tracks must have shape ({n}, tracks, {robot.nq}) (each track's pose on each frame), "
                          f"not {tracks.shape}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
-    fits = np.array([[tracker.fit(q, masks[k], source=names[k]) for q in tracks[k]] for k in range(n)])
-    kept = choose_tracks(fits, apart_tracks(tracker, tracks), switch, tolerance)
+    fits = np.empty((n, tracks.shape[1]))
+    for k in range(n):  # each frame's masks read once for all its tracks
+        m = masks[k]
+        fits[k] = [tracker.fit(q, m, source=names[k]) for q in tracks[k]]
+    kept = choose_tracks(fits, apart_tracks(robot, tracks), switch, tolerance)
     frames = np.arange(n)
     q, fit = tracks[frames, kept], fits[frames, kept]
     scorer = part_scorer(tracker, masks, names)

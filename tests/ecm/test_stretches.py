@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kms2pin.ecm.bothways import SWITCH, TOLERANCE, apart
+from kms2pin.ecm.bothways import SWITCH, TOLERANCE, apart, apart_tracks
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.silhouette import silhouette_iou
-from kms2pin.ecm.stretches import apart_tracks, stretches, track_poses
+from kms2pin.ecm.stretches import stretches, track_poses
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
@@ -95,10 +95,14 @@ def test_a_stretch_one_track_lost_is_taken_from_the_other_whichever_comes_first(
 def test_apart_tracks_is_apart_for_each_pair(scene):
     robot, qs, cams = scene
     lost = _shifted(qs, slice(3, 8), 0.2)
-    tracker = Tracker(robot, cams, q0=qs[0])
-    far = apart_tracks(tracker, np.stack([qs, lost, qs], axis=1))
+    far = apart_tracks(robot, np.stack([qs, lost, qs], axis=1))
     assert far.shape == (len(qs), 3, 3)
-    np.testing.assert_allclose(far[:, 0, 1], apart(robot, qs, lost), atol=1e-12)
+    # the mean body-centre distance, frame by frame, from the body poses here
+    centres = [np.mean([np.linalg.norm(a.translation - b.translation) for a, b in zip(robot.body_poses(x),
+                                                                                      robot.body_poses(y))])
+               for x, y in zip(qs, lost)]
+    np.testing.assert_allclose(far[:, 0, 1], np.array(centres) / robot.height, atol=1e-12)
+    np.testing.assert_array_equal(apart(robot, qs, lost), far[:, 0, 1])
     np.testing.assert_allclose(far[:, 1, 0], far[:, 0, 1], atol=1e-12)
     np.testing.assert_allclose(far[:, 0, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(far[3:8, 0, 1], 0.2 / robot.height, atol=1e-9)  # every body moved 0.2 m
