@@ -716,3 +716,31 @@ def test_both_ways_with_one_camera_notes_that_the_fit_does_not_see_depth(tmp_pat
     assert "note: --both-ways with one camera: the fit that chooses between the two tracks does not see depth" \
         in capsys.readouterr().err
     assert (tmp_path / "out" / "both_ways.csv").is_file()
+
+
+def test_jobs_track_the_tracks_beside_in_several_processes_to_the_same_outputs(tmp_path, cams2, capsys):
+    """``--jobs N``: the tracks beside (``--second-track``) tracked in N processes write the
+    outputs one process writes, byte for byte (trajectory.csv, stretches.csv; both_ways.csv,
+    whose backward tracks are tracked so too); by default one process a track, at most one a
+    core; meta.json says how many ran."""
+    from kms2pin.ecm.workers import FORK, usable_cores
+
+    masks = _synth(tmp_path, cams2, frames=6, noise=0.05)
+    tracks = ["--rest-prior", "10", "--second-track", "rest_prior=0; rest_prior=0,max_iterations=4"]
+    written = {}
+    for jobs in ("1", "3", None):
+        for extra, name in ((["--stretches"], "stretches.csv"), (["--both-ways"], "both_ways.csv")):
+            out = tmp_path / f"out-{jobs}-{name}"
+            given = ["--jobs", jobs] if jobs else []
+            assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", *tracks, *extra,
+                         *given, "-o", str(out)]) == 0
+            meta = json.loads((out / "meta.json").read_text())
+            assert meta["jobs"] == (min(int(jobs), 3) if jobs else min(3, usable_cores())) if FORK else 1
+            written[jobs, name] = [(out / f).read_bytes() for f in ("trajectory.csv", name)]
+    for key, files in written.items():
+        assert files == written["1", key[1]], key
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as err:
+        main(["track", LOWER, "--masks", str(masks), "--jobs", "0", "-o", str(tmp_path / "x")])
+    assert err.value.code == 2
+    assert "--jobs: expected a whole number >= 1, got '0'" in capsys.readouterr().err

@@ -53,11 +53,12 @@ from ..ecm.secondtrack import track_name
 from ..ecm.stretches import stretches, track_poses
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
+from ..ecm.workers import usable_cores
 from ..errors import BvhError, InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
-from ._common import Once, add_spec_argument, existing_file, lighting_notes, positive, read_model
+from ._common import Once, add_spec_argument, existing_file, lighting_notes, positive, positive_count, read_model
 from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
 from ._tracking import add_tracker_arguments, tracker_options
 from .segment import add_lighting_arguments
@@ -109,6 +110,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
                         "make motion.bvh and animation.html of it")
     add_tracker_arguments(p)
+    p.add_argument("--jobs", type=positive_count, metavar="N",
+                   help="with tracks beside (--second-track), the processes that track at once: each track in one "
+                        "of N, the same results (default: one per track, at most one per core this process may use; "
+                        "1: every track in this process)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", action=Once, required=True, metavar="OUT", help="output folder")
 
@@ -283,7 +288,7 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     meta = {
         "model": "model.kms", "system": robot.system.name, "root": robot.root, "cameras": len(frames.cameras),
         "masks": str(frames.masks_dir), "first_frame": frames.numbers[0], "frames": len(frames.numbers),
-        "options": dataclasses.asdict(tracker.options),
+        "options": dataclasses.asdict(tracker.options), "jobs": tracker.jobs,
         "complete": False,  # set once every frame is tracked (kms2pin evaluate warns otherwise)
     }
     if args.smooth is not None:
@@ -404,9 +409,10 @@ def _row(robot: Robot, r, q: np.ndarray, fit: float, took: list[str]):
     return dataclasses.replace(r, fit=fit)
 
 
-def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, results: list) -> np.ndarray:
-    """``--both-ways``: the frames tracked backwards from the last pose, both_ways.csv
-    written (:mod:`kms2pin.ecm.bothways`); returns the kept poses."""
+def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, results: list,
+                     jobs: int) -> np.ndarray:
+    """``--both-ways``: the frames tracked backwards from the last pose (in ``jobs``
+    processes), both_ways.csv written (:mod:`kms2pin.ecm.bothways`); returns the kept poses."""
     progress = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -416,7 +422,7 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     n = len(results)
     names = _frame_names(frames, n)
     bw = both_ways(robot, frames.cameras, _Masks(frames), np.array([r.q for r in results]), options, margin=MARGIN,
-                   switch=SWITCH, tolerance=TOLERANCE, sweeps=SWEEPS, sources=names, progress=progress)
+                   switch=SWITCH, tolerance=TOLERANCE, sweeps=SWEEPS, sources=names, progress=progress, jobs=jobs)
     kept = []
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
@@ -569,7 +575,15 @@ def run(args: argparse.Namespace) -> int:
         frames.removed = _remove_earlier_outputs(out, len(frames.cameras))
     if frames.removed:
         print(f"note: {out}: removed {frames.removed} file(s) of an earlier run", file=sys.stderr)
-    tracker = Tracker(robot, frames.cameras, options, q0=q0)
+    tracks = 1 + len(track_changes(options.hypotheses.second_track))
+    jobs = min(tracks, usable_cores()) if args.jobs is None else args.jobs
+    with Tracker(robot, frames.cameras, options, q0=q0, jobs=jobs) as tracker:
+        return _run_tracker(args, out, robot, options, tracker, frames, auto, init_fit, q0, video_mode)
+
+
+def _run_tracker(args, out: Path, robot: Robot, options, tracker: Tracker, frames: _Frames, auto: bool, init_fit,
+                 q0: np.ndarray, video_mode: bool) -> int:
+    """:func:`run` from the tracker made: the frames tracked, the offline passes and the outputs."""
     meta = _write_start(out, args, robot, tracker, frames)
     reacquire = None
     if auto and robot.root == "free":
@@ -577,11 +591,12 @@ def run(args: argparse.Namespace) -> int:
 
         reacquire = Reacquisition(robot, frames.cameras, q0, reference_fit=init_fit)
     results, tracker, tracks = _track_frames(args, out, robot, tracker, frames, reacquire)
+    tracker.close()  # the tracks beside's processes: the passes below do not step them
     qs = np.array([r.q for r in results])
     if args.stretches:
         qs = _keep_stretches(out, robot, tracker, frames, results, tracks)
     elif args.both_ways:
-        qs = _track_backwards(args, out, robot, options, frames, results)
+        qs = _track_backwards(args, out, robot, options, frames, results, tracker.jobs)
     elif args.beside:
         qs = _take_beside(out, robot, tracker, frames, results)
     _write_end(out, args, robot, qs, frames, meta)

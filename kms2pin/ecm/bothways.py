@@ -362,7 +362,7 @@ def _beside(robot: Robot, q: np.ndarray, k: int):
 def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_q: np.ndarray,
               options: TrackerOptions | Preset | None = None, *, margin: float = MARGIN, switch: float = SWITCH,
               tolerance: float = TOLERANCE, sweeps: int = SWEEPS, sources: Sequence[str] | None = None,
-              progress: Callable | None = None, **overrides) -> BothWays:
+              progress: Callable | None = None, jobs: int = 1, **overrides) -> BothWays:
     """Track ``masks`` (a sequence of frames, each one mask per camera) backwards from
     the last pose of ``forward_q`` (frames, nq), the forward track of the same frames,
     with a :class:`~kms2pin.ecm.tracker.Tracker` of ``robot``, ``cameras`` and
@@ -371,17 +371,17 @@ def both_ways(robot: Robot, cameras: Sequence[Camera], masks: Sequence, forward_
     from the frames beside (module docstring; ``margin``, ``switch`` and ``tolerance`` as in
     :func:`choose`; :func:`take_parts`; ``sweeps`` as in :func:`take_beside`, 0: none).
     ``sources`` names each frame in error messages (default ``"frame k"``); ``progress``
-    wraps the frames' iteration (a tqdm)."""
+    wraps the frames' iteration (a tqdm); ``jobs`` as :class:`~kms2pin.ecm.tracker.Tracker` takes it."""
     forward_q = np.asarray(forward_q, dtype=float)
     n = len(masks)
     if forward_q.shape != (n, robot.nq):
         raise ValueError(f"forward_q must have shape ({n}, {robot.nq}) (one pose per frame), not {forward_q.shape}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
-    tracker = Tracker(robot, cameras, options, q0=forward_q[-1], **overrides)
     order = range(n - 1, -1, -1)
     results: list[FrameResult | None] = [None] * n
-    for k in progress(order) if progress is not None else order:
-        results[k] = tracker.step(masks[k], source=names[k])
+    with Tracker(robot, cameras, options, q0=forward_q[-1], jobs=jobs, **overrides) as tracker:
+        for k in progress(order) if progress is not None else order:
+            results[k] = tracker.step(masks[k], source=names[k])
     fit_f, fit_b = np.empty(n), np.empty(n)
     for k in range(n):  # both fits at the sizes the backward pass ended with, each frame's masks read once
         m = masks[k]

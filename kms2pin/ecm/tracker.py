@@ -46,6 +46,7 @@ from .sizes import BodySizes
 from .state import RunningFit, SequenceState
 from .symmetry import Symmetry
 from .trajectory import FrameResult, Trajectory, TrajectoryCsvWriter, poor_fit_flag
+from .workers import BesideTracks
 
 __all__ = ["SEGMENTED_MASKS", "FrameResult", "Tracker", "Trajectory", "TrajectoryCsvWriter"]
 
@@ -61,6 +62,9 @@ class Tracker:
         q0: starting pose (default ``robot.q_rest``); every camera must see part of
             the model there, else :class:`CameraError`.
         scales: (n_bodies, 3) factors on the spec's semi-axes to start from (default 1).
+        jobs: processes to track in with tracks beside (``second_track``): track ``i`` in
+            process ``i % jobs``, 0 this one, the others forked from it
+            (:mod:`~kms2pin.ecm.workers`; the same results; :meth:`close` ends them).
         **overrides: options by their flat names (``upright=0.1``), over ``options``.
 
     The options as resolved for this robot and these cameras (the automatic ones
@@ -68,7 +72,7 @@ class Tracker:
     """
 
     def __init__(self, robot: Robot, cameras: Camera | Sequence[Camera], options: TrackerOptions | Preset | None = None,
-                 *, q0=None, scales=None, **overrides: Any):
+                 *, q0=None, scales=None, jobs: int = 1, **overrides: Any):
         opts = given = as_options(options, overrides)
         tracks = track_changes(opts.hypotheses.second_track)
         self.robot = robot
@@ -110,8 +114,8 @@ class Tracker:
                                      joint_dofs, hyp.hypothesis_iterations, hyp.binned_hypotheses,
                                      opts.iteration.prediction != "previous")
         # the tracks beside (second_track): the same options with each one's changes, each going on by itself
-        self._beside = [Tracker(robot, self.cameras, given.replace(second_track="", **changes), q0=q0, scales=scales)
-                        for changes in tracks]
+        beside = [Tracker(robot, self.cameras, given.replace(second_track="", **changes), q0=q0, scales=scales)
+                  for changes in tracks]
         for c, cam in enumerate(self.cameras):
             if not self.visible_bodies(cameras=[cam]):
                 name = f" '{cam.name}'" if cam.name else ""
@@ -120,6 +124,7 @@ class Tracker:
                     f"'{robot.system.name}' falls in its {cam.width}x{cam.height} image (camera at "
                     f"{np.round(cam.centre, 3).tolist()}); check the camera's placement or the initial pose"
                 )
+        self._beside = BesideTracks(beside, jobs)  # forked here, with jobs > 1
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -143,8 +148,7 @@ class Tracker:
         :meth:`BodySizes.calibrate`); returns the scales (n_bodies, 3) relative to the spec."""
         checked = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
         self._calibrate(Views.of(self.cameras, checked), self.q if q is None else np.asarray(q, dtype=float))
-        for other in self._beside:  # the masks as given: each checks (and cleans) them itself
-            other.calibrate(masks, source, q)
+        self._beside.calibrate(masks, source, q)  # the masks as given: each checks (and cleans) them itself
         return self.scales.copy()
 
     def _calibrate(self, views: Views, q: np.ndarray) -> None:
@@ -183,9 +187,10 @@ class Tracker:
         (:data:`~kms2pin.ecm.masks.NEARLY_FULL`) says nothing of the pose either:
         ``"mask nearly full"`` (every camera) or ``"mask nearly full in camera k"``.
         """
-        others = [other.step(masks, source) for other in self._beside]
-        res = self._step(masks, source)
-        return better(self, res, others, masks, source) if others else res
+        if not len(self._beside):
+            return self._step(masks, source)
+        res, others = self._beside.step(masks, source, lambda: self._step(masks, source))
+        return better(self, res, others, masks, source)
 
     def _step(self, masks, source: str) -> FrameResult:
         """:meth:`step` on this track alone."""
@@ -295,8 +300,24 @@ class Tracker:
 
     @property
     def tracks_beside(self) -> tuple[Tracker, ...]:
-        """The trackers of the tracks beside (``second_track``), each going on by itself."""
-        return tuple(self._beside)
+        """The trackers of the tracks beside (``second_track``), each going on by itself (one
+        run by another process, ``jobs``: a :class:`~kms2pin.ecm.workers.RemoteTrack`, its pose ``q``)."""
+        return self._beside.tracks
+
+    @property
+    def jobs(self) -> int:
+        """The processes the tracks run in (``jobs`` as used: at most one per track)."""
+        return self._beside.jobs
+
+    def close(self) -> None:
+        """End the processes of the tracks beside (``jobs``); nothing to do without them."""
+        self._beside.close()
+
+    def __enter__(self) -> Tracker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     @property
     def frame(self) -> int:
@@ -374,8 +395,7 @@ class Tracker:
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""
         self._reset(q0, "restart pose")
-        for other in self._beside:
-            other.restart(q0)
+        self._beside.restart(q0)
         self.hypotheses.alts.clear()
         self.ecm.forget_motion()
         if self.reach is not None:

@@ -64,7 +64,7 @@ def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_thems
             np.testing.assert_array_equal(r.q, a.q)
             assert FLAG not in r.flags and r.fit == pytest.approx(fits[0], abs=1e-12)
         np.testing.assert_array_equal(both.q, a.q)  # the first track goes on from its own pose
-        np.testing.assert_array_equal(both._beside[0].q, b.q)
+        np.testing.assert_array_equal(both.tracks_beside[0].q, b.q)
         assert set(r.timings) == set(a.timings)
     # the full track's frames are the better ones (after the first, where both start alike)
     assert sum(taken) >= len(taken) - 2 if weak_first else sum(taken) <= 2
@@ -93,7 +93,7 @@ def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason()
     # the second tracker decides its automatic options for itself (one camera: the alternatives' iterations)
     t = Tracker(robot, Camera.default(), max_iterations=1, min_iterations=1, second_track="max_iterations=8")
     assert t.options.hypotheses.hypothesis_iterations == 1
-    assert t._beside[0].options.hypotheses.hypothesis_iterations == 8
+    assert t.tracks_beside[0].options.hypotheses.hypothesis_iterations == 8
 
 
 def test_the_track_command_takes_a_second_track():
@@ -147,9 +147,9 @@ def test_several_tracks_beside_each_frame_the_best_fitting_of_them():
     alone = [Tracker(robot, cams, q0=qs[0], **WEAK), Tracker(robot, cams, q0=qs[0], **{**WEAK, **two}),
              Tracker(robot, cams, q0=qs[0], **{**WEAK, **strong})]
     both = Tracker(robot, cams, q0=qs[0], **WEAK, second_track="max_iterations=2; max_iterations=8,min_iterations=3")
-    assert [len(t._beside) for t in (both, *both._beside)] == [2, 0, 0]
-    assert both._beside[1].options.iteration.min_iterations == 3
-    assert both._beside[0].options.iteration.min_iterations == 1  # each track's changes to the options as given
+    assert [len(t.tracks_beside) for t in (both, *both.tracks_beside)] == [2, 0, 0]
+    assert both.tracks_beside[1].options.iteration.min_iterations == 3
+    assert both.tracks_beside[0].options.iteration.min_iterations == 1  # each track's changes to the options as given
     chosen = []
     for m in masks:
         runs, r = [t.step(m) for t in alone], both.step(m)
@@ -159,7 +159,7 @@ def test_several_tracks_beside_each_frame_the_best_fitting_of_them():
         np.testing.assert_array_equal(r.q, runs[k].q)
         assert r.fit == pytest.approx(fits[k], abs=1e-12)
         assert (flag(k - 1) in r.flags) if k else not any(f.startswith("from the") for f in r.flags)
-        for t, other in zip(both._beside, alone[1:]):
+        for t, other in zip(both.tracks_beside, alone[1:]):
             np.testing.assert_array_equal(t.q, other.q)
     assert {1, 2} <= set(chosen) and chosen.count(0) <= 1  # both tracks beside chosen, the weak one hardly
     assert flag(0) == FLAG and flag(1) == "from the third track" and flag(5) == "from track 7"
