@@ -49,7 +49,7 @@ from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways,
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS, track_changes
 from ..ecm.secondtrack import flag as track_flag
-from ..ecm.secondtrack import track_name
+from ..ecm.secondtrack import is_track_flag, part_flag, track_name
 from ..ecm.stretches import stretches, track_poses
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
@@ -464,13 +464,12 @@ def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, 
     n = len(results)
     st = stretches(tracker, _Masks(frames), np.array(tracks), switch=SWITCH,
                    tolerance=TOLERANCE, sweeps=SWEEPS, sources=_frame_names(frames, n))
-    beside_flags = {track_flag(t) for t in range(st.fits.shape[1] - 1)}
     rows = []
     for k, r in enumerate(results):  # a row's other flags are its online pose's (trajectory.csv)
         fit = float(st.fit[k])
-        flags = [f for f in r.flags if f not in beside_flags and not f.startswith(POOR_FIT)]
+        flags = [f for f in r.flags if not is_track_flag(f) and not f.startswith(POOR_FIT)]
         flags += [track_flag(st.track[k] - 1)] if st.track[k] else []
-        flags += [f"'{h}' taken from {track_name(t)}" for h, t in zip(st.part_names, st.parts[k]) if t >= 0]
+        flags += [part_flag(h, t) for h, t in zip(st.part_names, st.parts[k]) if t >= 0]
         flags += [f"'{h}' taken from the frames beside it" for h, t in zip(st.part_names, st.beside[k]) if t]
         flags += [poor_fit_flag(fit)] if r.iterations and fit < tracker.options.silhouette.poor_fit else []
         rows.append(dataclasses.replace(r, q=st.q[k].copy(), body_poses=robot.maximal_coordinates(st.q[k]), fit=fit,

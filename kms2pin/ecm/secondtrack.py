@@ -6,27 +6,39 @@ better than the lost one (docs/design/tracking-history.md).  So a
 :class:`~kms2pin.ecm.tracker.Tracker` with ``second_track`` runs a second tracker on the
 same frames, with some options changed (or several, each with its own changes), each
 track going on from its own poses, and reports on each frame the pose that fits best
-(IoU at the first tracker's body sizes).  Each track beside costs about one more track's
-time.
+(IoU at the first tracker's body sizes), then each part of it (:mod:`~kms2pin.ecm.parts`:
+a limb below a hip, a knee, a shoulder, an elbow, ...) taken from the other tracks where
+that fits better: one track may hold an arm that the best-fitting one lost.  Each track
+beside costs about one more track's time; the parts a few milliseconds a frame.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
+import weakref
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .masks import Views, check_masks
+from .parts import Parts
+from .silhouette import IncrementalFit
 from .trajectory import POOR_FIT, FrameResult, poor_fit_flag
 
 if TYPE_CHECKING:
     from .tracker import Tracker
 
-__all__ = ["FLAG", "better", "flag", "track_name"]
+__all__ = ["FLAG", "better", "flag", "is_track_flag", "part_flag", "track_name"]
 
 #: how a frame taken from the second track is flagged (a third: :func:`flag`)
 FLAG = "from the second track"
+#: each robot's parts (:func:`_parts`)
+_PARTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _ORDINALS = ("first", "second", "third", "fourth", "fifth")
+#: the flags better adds (flag, part_flag)
+_TRACK_FLAG = re.compile(r"(?:'.+' taken )?from (?:the (?:" + "|".join(_ORDINALS) + r") track|track \d+)")
 
 
 def track_name(t: int) -> str:
@@ -35,32 +47,64 @@ def track_name(t: int) -> str:
     return f"the {_ORDINALS[t]} track" if t < len(_ORDINALS) else f"track {t + 1}"
 
 
+def part_flag(joint: str, t: int) -> str:
+    """The flag of a part (``joint`` and the joints below it) taken from track ``t``
+    (0: the first): ``"'<joint>' taken from the <n-th> track"``."""
+    return f"'{joint}' taken from {track_name(t)}"
+
+
+def is_track_flag(text: str) -> bool:
+    """Whether ``text`` is a flag :func:`better` adds: :func:`flag` or :func:`part_flag`."""
+    return bool(_TRACK_FLAG.fullmatch(text))
+
+
 def flag(k: int) -> str:
     """The flag of a frame taken from track ``k`` beside the first (0: the second track)."""
     return f"from {track_name(k + 1)}"
+
+
+def _parts(robot) -> Parts:
+    """The parts :func:`better` takes from the other tracks, worked out once a robot."""
+    taker = _PARTS.get(robot)
+    if taker is None:
+        taker = _PARTS[robot] = Parts(robot, branches=False)
+    return taker
 
 
 def better(tracker: Tracker, res: FrameResult, others: Sequence[FrameResult], masks, source: str) -> FrameResult:
     """Of ``tracker``'s frame ``res`` and its tracks beside's frames ``others`` on
     ``masks``, the one whose pose fits best at ``tracker``'s body sizes over the cameras
     that see something (ties go to the earlier track; a frame with no mask to fit:
-    ``res``), with that fit and every track's timings summed; one from beside flagged
-    :func:`flag`, its ``poor fit`` judged again by that fit and ``tracker``'s threshold
-    (its other flags its own)."""
+    ``res``), with each part then taken from the other tracks in track order where that
+    fits better (:func:`~kms2pin.ecm.parts.take_parts`'s parts: not one with a branch
+    below it), with that fit and every track's timings summed.  One from beside is
+    flagged :func:`flag`, a part taken ``'<joint>' taken from the <n-th> track``; its
+    ``poor fit`` judged again by that fit and ``tracker``'s threshold (its other flags its own)."""
     timings = {k: res.timings.get(k, 0.0) + sum(o.timings.get(k, 0.0) for o in others) for k in res.timings}
     views = Views.of(tracker.cameras, check_masks(masks, tracker.cameras, source, tracker.options.silhouette.clean))
     views = views.seeing()
     if not res.iterations or not len(views):
         return dataclasses.replace(res, timings=timings)
-    best, fit = -1, tracker.ecm.fit(res.q, views)
-    for k, other in enumerate(others):
+    tracks = [res, *others]
+    best, fit = 0, tracker.ecm.fit(res.q, views)
+    for k, other in enumerate(others, 1):
         theirs = tracker.ecm.fit(other.q, views)
         if theirs > fit:
             best, fit = k, theirs
-    if best < 0:
-        return dataclasses.replace(res, fit=fit, timings=timings)
-    chosen = others[best]
+    chosen = tracks[best]
+    taker = _parts(tracker.robot)
+    score = IncrementalFit(tracker.robot, views.cameras, views.masks, tracker.ecm.sizes.inner)
+    q, took = chosen.q, []
+    for t, other in enumerate(tracks):
+        if t == best or not other.iterations:
+            continue
+        taken = np.zeros(len(taker.names), dtype=bool)
+        q, fit = taker.take(score, q, other.q, fit, taken)
+        took += [part_flag(h, t) for h, x in zip(taker.names, taken) if x]
     flags = tuple(f for f in chosen.flags if not f.startswith(POOR_FIT))
     if fit < tracker.options.silhouette.poor_fit:
         flags += (poor_fit_flag(fit),)
-    return dataclasses.replace(chosen, fit=fit, flags=(*flags, flag(best)), timings=timings)
+    flags += (flag(best - 1),) if best else ()
+    if took:
+        chosen = dataclasses.replace(chosen, q=q, body_poses=tracker.robot.maximal_coordinates(q))
+    return dataclasses.replace(chosen, fit=fit, flags=(*flags, *took), timings=timings)

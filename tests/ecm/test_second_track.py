@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from kms2pin.commands._tracking import tracker_options
 from kms2pin.ecm.camera import Camera
 from kms2pin.ecm.motions import make_motion
 from kms2pin.ecm.options import second_changes, track_changes
-from kms2pin.ecm.secondtrack import FLAG, better, flag
+from kms2pin.ecm.secondtrack import FLAG, better, flag, track_name
 from kms2pin.ecm.silhouette import silhouette_iou
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
@@ -32,6 +33,37 @@ def _scene(frames=12):
     return robot, qs, cams, [render(robot, q, cams) for q in qs]
 
 
+def _check_frame(robot, r, runs, cams, m, inner) -> int:
+    """Check frame result ``r`` of tracks ``runs`` (each track's own result) on masks ``m``:
+    the whole pose is the best-fitting track's (IoU computed here; ties the earlier), then
+    each part flagged ``'<joint>' taken from <track>`` brings that track's joint
+    coordinates, with those below it, in the order the flags give; the fit is the pose's
+    and no lower than the best track's.  Returns the track chosen."""
+    fits = [silhouette_iou(robot.body_poses(x.q), inner, cams, m) for x in runs]
+    k = int(np.argmax(fits))
+    names = {track_name(t): t for t in range(len(runs))}
+    taken = [re.fullmatch(r"'(.+)' taken from (.+)", f) for f in r.flags]
+    taken = [(x[1], names[x[2]]) for x in taken if x]
+    pm = robot.model
+    np.testing.assert_array_equal(r.q[:7], runs[k].q[:7])  # the root is no part: the chosen track's
+    for j in robot.joints:
+        if j.kind == "free":
+            continue
+        jid = pm.getJointId(j.name)
+        source = k
+        for name, t in taken:  # the last part taken over j, in the order taken
+            if jid in pm.subtrees[pm.getJointId(name)]:
+                source = t
+        sl = slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid])
+        np.testing.assert_array_equal(r.q[sl], runs[source].q[sl], err_msg=j.name)
+    assert all(t != k for _, t in taken)  # never from the chosen track itself
+    fit = silhouette_iou(robot.body_poses(r.q), inner, cams, m)
+    assert r.fit == pytest.approx(fit, abs=1e-12) and fit >= fits[k] - 1e-12
+    assert (fit > fits[k]) == bool(taken)
+    assert (flag(k - 1) in r.flags) if k else not any(f.startswith("from the") for f in r.flags)
+    return k
+
+
 @pytest.mark.parametrize("weak_first", [True, False])
 def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_themselves(weak_first):
     """With ``second_track`` every frame is the pose, of two tracks made apart (the options,
@@ -48,26 +80,40 @@ def test_each_frame_reports_the_better_fitting_of_two_tracks_that_go_on_by_thems
     first = Tracker(robot, cams, q0=qs[0], **one)
     second = Tracker(robot, cams, q0=qs[0], **{**one, **other})
     both = Tracker(robot, cams, q0=qs[0], **one, second_track=changes)
-    taken = []
+    chosen, parts = [], 0
     for m in masks:
         a, b, r = first.step(m), second.step(m), both.step(m)
         if not any(x.any() for x in m):
             assert "empty mask" in r.flags and FLAG not in r.flags
             np.testing.assert_array_equal(r.q, a.q)
             continue
-        fits = [silhouette_iou(robot.body_poses(x.q), both.inner, cams, m) for x in (a, b)]
-        taken.append(fits[1] > fits[0])
-        if taken[-1]:
-            np.testing.assert_array_equal(r.q, b.q)
-            assert r.flags == (*b.flags, FLAG) and r.fit == pytest.approx(fits[1], abs=1e-12)
-        else:
-            np.testing.assert_array_equal(r.q, a.q)
-            assert FLAG not in r.flags and r.fit == pytest.approx(fits[0], abs=1e-12)
+        chosen.append(_check_frame(robot, r, [a, b], cams, m, both.inner))
+        parts += any("' taken from" in f for f in r.flags)
         np.testing.assert_array_equal(both.q, a.q)  # the first track goes on from its own pose
         np.testing.assert_array_equal(both.tracks_beside[0].q, b.q)
         assert set(r.timings) == set(a.timings)
     # the full track's frames are the better ones (after the first, where both start alike)
-    assert sum(taken) >= len(taken) - 2 if weak_first else sum(taken) <= 2
+    assert sum(chosen) >= len(chosen) - 2 if weak_first else sum(chosen) <= 2
+    assert parts  # and the weak one's parts fit better now and then
+
+
+def test_each_part_is_taken_from_the_track_that_holds_it():
+    """Two tracks, each with one knee off (the other's right): the frame reported is the
+    true pose, the chosen track's with the other's leg, flagged with the part taken."""
+    robot, qs, cams, masks = _scene(2)
+    tracker = Tracker(robot, cams, q0=qs[0])
+    tracker.step(masks[0])
+    res = tracker.step(masks[1])
+    pm = robot.model
+    offs = []
+    for knee in ("leftShin_knee", "rightShin_knee"):
+        q = qs[1].copy()
+        q[pm.idx_qs[pm.getJointId(knee)]] += 0.6
+        offs.append(dataclasses.replace(res, q=q, flags=()))
+    out = better(tracker, offs[0], [offs[1]], masks[1], "frame 1")
+    _check_frame(robot, out, offs, cams, masks[1], tracker.inner)
+    np.testing.assert_array_equal(out.q, qs[1])
+    assert len([f for f in out.flags if "' taken from" in f]) == 1
 
 
 def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason():
@@ -126,8 +172,8 @@ def test_a_frame_from_the_second_track_is_judged_poor_by_the_first_tracks_thresh
     tracker = Tracker(robot, cams, q0=qs[0], poor_fit=poor_fit)
     tracker.step(masks[0])
     res = tracker.step(masks[1])
-    off = res.q.copy()
-    off[:3] += [0.15, 0.0, 0.0]  # the first track's pose 15 cm off; the second's the truth
+    off = qs[1].copy()
+    off[:3] += [0.15, 0.0, 0.0]  # the first track's pose 15 cm off (its joints the truth's); the second's the truth
     second = dataclasses.replace(res, q=qs[1], flags=("poor fit (0.01)", "swung 'x' the other way"))
     out = better(tracker, dataclasses.replace(res, q=off), [second], masks[1], "frame 1")
     fit = silhouette_iou(robot.body_poses(qs[1]), tracker.inner, cams, masks[1])
@@ -153,12 +199,7 @@ def test_several_tracks_beside_each_frame_the_best_fitting_of_them():
     chosen = []
     for m in masks:
         runs, r = [t.step(m) for t in alone], both.step(m)
-        fits = [silhouette_iou(robot.body_poses(x.q), both.inner, cams, m) for x in runs]
-        k = int(np.argmax(fits))
-        chosen.append(k)
-        np.testing.assert_array_equal(r.q, runs[k].q)
-        assert r.fit == pytest.approx(fits[k], abs=1e-12)
-        assert (flag(k - 1) in r.flags) if k else not any(f.startswith("from the") for f in r.flags)
+        chosen.append(_check_frame(robot, r, runs, cams, m, both.inner))
         for t, other in zip(both.tracks_beside, alone[1:]):
             np.testing.assert_array_equal(t.q, other.q)
     assert {1, 2} <= set(chosen) and chosen.count(0) <= 1  # both tracks beside chosen, the weak one hardly
@@ -175,3 +216,15 @@ def test_tracks_beside_are_separated_by_semicolons_and_none_is_empty():
                           ("midline=1; midline=-1", "second_track: midline must be >= 0.0, not -1")):
         with pytest.raises(OptionError, match=f"^{message}"):
             Tracker(robot, Camera.default(), second_track=text)
+
+
+def test_the_flags_of_a_track_and_of_a_part_taken_from_one_are_told_apart_from_the_others():
+    from kms2pin.ecm.secondtrack import is_track_flag, part_flag
+
+    assert part_flag("leftShin_knee", 0) == "'leftShin_knee' taken from the first track"
+    assert part_flag("a", 9) == "'a' taken from track 10"
+    for f in (FLAG, flag(1), flag(8), part_flag("leftShin_knee", 2), part_flag("x y", 12)):
+        assert is_track_flag(f), f
+    for f in ("'x' taken from the frames beside it", "poor fit (0.40)", "from the second track!",
+              "kept from the backward track", "'x' taken from the backward track"):
+        assert not is_track_flag(f), f
