@@ -333,3 +333,20 @@ def test_a_video_tracked_both_ways_and_smoothed(tmp_path, clip16):
         assert [r.split(",")[0] for r in rows[1:]] == [str(k) for k in range(16)], name
     meta = json.loads((out / "meta.json").read_text())
     assert meta["both_ways"] is True and meta["smooth_hz"] == 6.0 and meta["complete"] is True
+
+
+@pytest.mark.slow
+def test_tracks_beside_in_processes_from_videos_write_what_one_process_writes(scene, tmp_path, capsys):
+    """``--video`` with tracks beside in two processes (``--jobs 2``; the decoders run in
+    children of their own): the outputs of one process, byte for byte, and every child ended."""
+    written = []
+    for jobs in ("1", "2"):
+        out = tmp_path / f"out{jobs}"
+        assert main(["track", str(LOWER), *_args(scene), "--second-track", "max_iterations=4", "--jobs", jobs,
+                     "--no-progress", "--no-video", "-o", str(out)]) == 0
+        assert json.loads((out / "meta.json").read_text())["jobs"] == int(jobs)
+        written.append([(out / f).read_bytes() for f in ("trajectory.csv", "poses.npz")])
+    assert written[0] == written[1]
+    import multiprocessing
+
+    assert not multiprocessing.active_children()
