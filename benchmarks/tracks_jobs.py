@@ -16,7 +16,6 @@ the medians and their ratio.  Elapsed time, not process time: the point is the c
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -27,8 +26,6 @@ from kms2pin.ecm import Tracker
 from kms2pin.ecm.options import track_changes
 from kms2pin.ecm.stretches import track_poses
 from kms2pin.ecm.workers import usable_cores
-
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 #: the four tracks of docs/tracking.md's most accurate rows
 FOUR = "midline=1; midline=1,midline_legs=0.1; prediction_memory=3"

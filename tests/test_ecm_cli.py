@@ -735,7 +735,7 @@ def test_jobs_track_the_tracks_beside_in_several_processes_to_the_same_outputs(t
             assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", *tracks, *extra,
                          *given, "-o", str(out)]) == 0
             meta = json.loads((out / "meta.json").read_text())
-            assert meta["jobs"] == (min(int(jobs), 3) if jobs else min(3, usable_cores())) if FORK else 1
+            assert meta["jobs"] == ((min(int(jobs), 3) if jobs else min(3, usable_cores())) if FORK else 1)
             written[jobs, name] = [(out / f).read_bytes() for f in ("trajectory.csv", name)]
     for key, files in written.items():
         assert files == written["1", key[1]], key

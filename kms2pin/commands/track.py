@@ -49,7 +49,7 @@ from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways,
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS, track_changes
 from ..ecm.secondtrack import flag as track_flag
-from ..ecm.secondtrack import is_track_flag, part_flag, track_name
+from ..ecm.secondtrack import is_part_flag, is_track_flag, part_flag, track_name
 from ..ecm.stretches import stretches, track_poses
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
@@ -426,6 +426,8 @@ def _track_backwards(args, out: Path, robot: Robot, options, frames: _Frames, re
     kept = []
     for k, (f, b, back) in enumerate(zip(results, bw.results, bw.backward)):
         r = dataclasses.replace(b, flags=(*b.flags, "kept from the backward track")) if back else f
+        if not np.array_equal(bw.q[k], r.q):  # parts replaced: the online track's parts no longer there
+            r = dataclasses.replace(r, flags=tuple(x for x in r.flags if not is_part_flag(x)))
         side = "forward" if back else "backward"
         took = [f"'{h}' taken from the {side} track" for h, t in zip(bw.part_names, bw.parts[k]) if t]
         took += [f"'{h}' taken from the frames beside it" for h, t in zip(bw.part_names, bw.beside[k]) if t]

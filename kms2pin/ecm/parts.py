@@ -11,6 +11,7 @@ beside (:func:`~kms2pin.ecm.secondtrack.better`) and offline by
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 
 import numpy as np
@@ -52,7 +53,7 @@ class Parts:
 
     def __init__(self, robot: Robot, branches: bool = True):
         pm = self.pm = robot.model
-        self.robot = robot
+        self._robot = weakref.ref(robot)  # weak: secondtrack caches a Parts per robot
         # without ``branches`` a part with a branch below it (:func:`branching`) is not tried
         skipped = set() if branches else set(branching(robot))
         self.here, self.there = pm.createData(), pm.createData()
@@ -70,6 +71,10 @@ class Parts:
             self.plan.append((jid, kinds[name] != "spherical", slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid]),
                               np.concatenate(below or [np.arange(0)]),
                               list(range(pm.idx_vs[jid], pm.idx_vs[jid] + pm.nvs[jid]))))
+
+    @property
+    def robot(self) -> Robot:
+        return self._robot()
 
     def take(self, score: Callable[[np.ndarray], float], q: np.ndarray, other: np.ndarray, fit: float,
              taken: np.ndarray) -> tuple[np.ndarray, float]:

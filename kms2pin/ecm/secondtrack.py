@@ -30,7 +30,7 @@ from .trajectory import POOR_FIT, FrameResult, poor_fit_flag
 if TYPE_CHECKING:
     from .tracker import Tracker
 
-__all__ = ["FLAG", "better", "flag", "is_track_flag", "part_flag", "track_name"]
+__all__ = ["FLAG", "better", "flag", "is_part_flag", "is_track_flag", "part_flag", "track_name"]
 
 #: how a frame taken from the second track is flagged (a third: :func:`flag`)
 FLAG = "from the second track"
@@ -56,6 +56,11 @@ def part_flag(joint: str, t: int) -> str:
 def is_track_flag(text: str) -> bool:
     """Whether ``text`` is a flag :func:`better` adds: :func:`flag` or :func:`part_flag`."""
     return bool(_TRACK_FLAG.fullmatch(text))
+
+
+def is_part_flag(text: str) -> bool:
+    """Whether ``text`` is a :func:`part_flag`."""
+    return text.startswith("'") and is_track_flag(text)
 
 
 def flag(k: int) -> str:
@@ -94,17 +99,22 @@ def better(tracker: Tracker, res: FrameResult, others: Sequence[FrameResult], ma
     chosen = tracks[best]
     taker = _parts(tracker.robot)
     score = IncrementalFit(tracker.robot, views.cameras, views.masks, tracker.ecm.sizes.inner)
-    q, took = chosen.q, []
+    pm = tracker.robot.model
+    q, took = chosen.q, {}  # the parts in the pose, by joint: the track each came from (the last taken)
     for t, other in enumerate(tracks):
         if t == best or not other.iterations:
             continue
         taken = np.zeros(len(taker.names), dtype=bool)
         q, fit = taker.take(score, q, other.q, fit, taken)
-        took += [part_flag(h, t) for h, x in zip(taker.names, taken) if x]
+        for h in (h for h, x in zip(taker.names, taken) if x):
+            below = pm.subtrees[pm.getJointId(h)]  # a part taken replaces those taken at or below it
+            took = {j: u for j, u in took.items() if pm.getJointId(j) not in below}
+            took[h] = t
     flags = tuple(f for f in chosen.flags if not f.startswith(POOR_FIT))
     if fit < tracker.options.silhouette.poor_fit:
         flags += (poor_fit_flag(fit),)
     flags += (flag(best - 1),) if best else ()
     if took:
         chosen = dataclasses.replace(chosen, q=q, body_poses=tracker.robot.maximal_coordinates(q))
-    return dataclasses.replace(chosen, fit=fit, flags=(*flags, *took), timings=timings)
+    return dataclasses.replace(chosen, fit=fit, flags=(*flags, *(part_flag(h, t) for h, t in took.items())),
+                               timings=timings)

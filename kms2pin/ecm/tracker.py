@@ -146,6 +146,7 @@ class Tracker:
         """Measure every body's semi-axes on ``masks`` with the configuration held at ``q``
         (default the current pose, i.e. ``q0`` before the first frame;
         :meth:`BodySizes.calibrate`); returns the scales (n_bodies, 3) relative to the spec."""
+        self._beside.check()  # tracks beside that cannot go on: nothing changed here either
         checked = check_masks(masks, self.cameras, source, self.options.silhouette.clean)
         self._calibrate(Views.of(self.cameras, checked), self.q if q is None else np.asarray(q, dtype=float))
         self._beside.calibrate(masks, source, q)  # the masks as given: each checks (and cleans) them itself
@@ -394,6 +395,7 @@ class Tracker:
         """Go on from ``q0`` as from a first frame's pose (no velocity, no alternative
         hypotheses), keeping every option, the measured body sizes and the root's upright
         axis, e.g. when the subject has been found again after leaving the view."""
+        self._beside.check()
         self._reset(q0, "restart pose")
         self._beside.restart(q0)
         self.hypotheses.alts.clear()

@@ -12,8 +12,9 @@ the last bit (the same code on the same numbers).
 
 A child ignores Ctrl-C (this process handles it) and ends when this process closes it
 (:meth:`BesideTracks.close`, or when the tracker is collected or the interpreter exits)
-or ends itself.  Forking needs the ``fork`` start method (Linux, macOS); elsewhere every
-track runs in this process.
+or ends itself; it ends quietly on SIGTERM.  After an interrupt that leaves the children out
+of step (Ctrl-C while this process waits for them) they are ended, and the tracker says so
+at its next frame.  Forking is done on Linux only; elsewhere every track runs in this process.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import sys
 import weakref
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
@@ -37,8 +39,9 @@ if TYPE_CHECKING:
 
 __all__ = ["FORK", "BesideTracks", "RemoteTrack", "usable_cores"]
 
-#: whether child processes can be forked here (else ``jobs`` is taken as 1)
-FORK = "fork" in mp.get_all_start_methods()
+#: whether child processes are forked here (Linux; elsewhere ``jobs`` is taken as 1: macOS's
+#: system libraries are not safe to fork, and Windows cannot)
+FORK = sys.platform.startswith("linux") and "fork" in mp.get_all_start_methods()
 #: seconds a child waits for a message before it looks whether this process still runs
 _PARENT_CHECK_S = 1.0
 #: seconds :meth:`BesideTracks.close` waits for a child to end before it stops it
@@ -70,8 +73,9 @@ def _serve(conn, trackers: list[Tracker], parent: int, inherited: list) -> None:
     """A child's loop: each message ``(what, args)`` done on every one of ``trackers`` in
     order, answered ``("ok", results, poses)`` or ``("error", exception)``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle (blocked until here)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    for c in inherited:  # the other children's pipe ends, forked along: not this child's to hold
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the command line's handler: SIGTERM ends the child quietly
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    for c in inherited:  # the parent's pipe ends, forked along (this one's too): not this child's to hold
         c.close()
     while True:
         if not conn.poll(_PARENT_CHECK_S):
@@ -107,9 +111,10 @@ class _Child:
         self.tracks = tracks
         self.remote = [RemoteTrack(i, t.q) for i, t in zip(tracks, trackers)]
         self.conn, theirs = ctx.Pipe()
-        self.process = ctx.Process(target=_serve, args=(theirs, trackers, os.getpid(), inherited),
+        self.process = ctx.Process(target=_serve, args=(theirs, trackers, os.getpid(), [*inherited, self.conn]),
                                    name=f"kms2pin {', '.join(track_name(i) for i in tracks)}", daemon=True)
-        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # the child's mask: no Ctrl-C yet
+        # the child's mask: no Ctrl-C or SIGTERM until it has set its own handlers
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         try:
             self.process.start()
         finally:
@@ -122,18 +127,19 @@ class _Child:
         except (BrokenPipeError, EOFError, OSError) as err:
             raise self._ended() from err
 
-    def receive(self) -> list:
-        """The child's answer to the last message: each of its tracks' result (raising its error)."""
+    def receive(self) -> tuple[list | None, BaseException | None]:
+        """The child's answer to the last message: each of its tracks' result, or the error
+        it raised (the child still in step); a child that cannot answer raises."""
         try:
             answer = self.conn.recv()
         except (EOFError, OSError) as err:
             raise self._ended() from err
         if answer[0] == "error":
-            raise answer[1]
+            return None, answer[1]
         _, out, poses = answer
         for r, q in zip(self.remote, poses):
             r.q = q
-        return out
+        return out, None
 
     def _ended(self) -> ChildProcessError:
         self.process.join(0.1)
@@ -180,6 +186,7 @@ class BesideTracks:
             inherited = [c.conn for c in self._children]
             self._children.append(_Child(ctx, [t for _, t in mine], [i for i, _ in mine], inherited))
         self._finalizer = weakref.finalize(self, _close_all, self._children)
+        self._broken: str | None = None  # why the tracks beside cannot go on
         order = {i: t for i, t in self._here} | {i: r for c in self._children for i, r in zip(c.tracks, c.remote)}
         #: each track beside as this process sees it: the Tracker, or a RemoteTrack
         self.tracks: tuple[Any, ...] = tuple(order[i] for i in sorted(order))
@@ -191,10 +198,13 @@ class BesideTracks:
         """``what(*args)`` on every track beside, and ``own()`` (this process's track) while
         the children work; returns own's result and the tracks' in track order.  An error
         anywhere is raised once every child has answered (the tracks stay in step)."""
-        if self.jobs > 1 and not self._children:
-            raise RuntimeError("the tracker's processes were closed (Tracker.close): its tracks beside cannot go on")
-        for c in self._children:
-            c.send(what, args)
+        self.check()
+        try:
+            for c in self._children:
+                c.send(what, args)
+        except BaseException as err:  # noqa: BLE001 - some children have the message, some not: out of step
+            self._break(err)
+            raise
         out: dict[int, Any] = {}
         first: BaseException | None = None
         mine = None
@@ -206,12 +216,28 @@ class BesideTracks:
             first = err
         for c in self._children:
             try:
-                out.update(zip(c.tracks, c.receive()))
-            except BaseException as err:  # noqa: BLE001
-                first = first or err
+                theirs, error = c.receive()
+            except BaseException as err:  # noqa: BLE001 - an answer unread (Ctrl-C here, a child ended): out of step
+                self._break(err)
+                raise
+            if error is not None:
+                first = first or error
+            else:
+                out.update(zip(c.tracks, theirs))
         if first is not None:
             raise first
         return mine, [out[i] for i in sorted(out)]
+
+    def check(self) -> None:
+        """Raise RuntimeError if the tracks beside cannot go on (closed, or out of step)."""
+        if self._broken is not None:
+            raise RuntimeError(self._broken)
+
+    def _break(self, err: BaseException) -> None:
+        """End the children after ``err`` left them out of step with this process."""
+        self.close()
+        self._broken = (f"the tracks beside were left out of step by {type(err).__name__} ({err}) and their "
+                        "processes ended: make a new Tracker to go on")
 
     def step(self, masks, source: str, own: Callable[[], FrameResult]) -> tuple[FrameResult, list[FrameResult]]:
         """One frame on every track beside (:meth:`Tracker.step`) and on the tracker's own
@@ -228,4 +254,6 @@ class BesideTracks:
 
     def close(self) -> None:
         """End the children (the tracks beside they ran can no longer step)."""
+        if self._children and self._broken is None:
+            self._broken = "the tracker's processes were closed (Tracker.close): its tracks beside cannot go on"
         self._finalizer()

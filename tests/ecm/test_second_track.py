@@ -57,6 +57,8 @@ def _check_frame(robot, r, runs, cams, m, inner) -> int:
         sl = slice(pm.idx_qs[jid], pm.idx_qs[jid] + pm.nqs[jid])
         np.testing.assert_array_equal(r.q[sl], runs[source].q[sl], err_msg=j.name)
     assert all(t != k for _, t in taken)  # never from the chosen track itself
+    for a, (name, _) in enumerate(taken):  # a part taken again, or under one taken later: one flag, the last
+        assert not any(pm.getJointId(name) in pm.subtrees[pm.getJointId(later)] for later, _ in taken[a + 1:]), r.flags
     fit = silhouette_iou(robot.body_poses(r.q), inner, cams, m)
     assert r.fit == pytest.approx(fit, abs=1e-12) and fit >= fits[k] - 1e-12
     assert (fit > fits[k]) == bool(taken)

@@ -72,7 +72,11 @@ def test_tracks_in_several_processes_are_the_tracks_of_one_to_the_last_bit(jobs)
                 np.testing.assert_array_equal(t.q, other.q)
                 np.testing.assert_array_equal(t.q, mine.q)
         np.testing.assert_array_equal(many.scales, one.scales)
-    assert not any(_alive(p) for p in _pids(many) or [])
+        pids = _pids(many)
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in pids)
 
 
 def test_the_processes_end_on_close_and_the_tracker_then_says_why_it_cannot_go_on():
@@ -170,3 +174,49 @@ def test_jobs_must_be_a_whole_number_of_processes(jobs):
 
 def test_usable_cores_are_the_affinity():
     assert usable_cores() == len(os.sched_getaffinity(0)) >= 1
+
+
+def test_a_child_ended_by_sigterm_ends_quietly_and_the_tracker_says_it_cannot_go_on(capfd):
+    robot, qs, cams, masks = _scene(3)
+    with Tracker(robot, cams, q0=qs[0], **WEAK, second_track=TRACKS, jobs=2) as t:
+        t.step(masks[0])
+        (pid,) = _pids(t)
+        os.kill(pid, signal.SIGTERM)
+        with pytest.raises(ChildProcessError, match=r"was killed by signal 15"):
+            t.step(masks[1])
+        with pytest.raises(RuntimeError, match="left out of step by ChildProcessError"):
+            t.step(masks[2])
+        with pytest.raises(RuntimeError, match="left out of step"):
+            t.restart(qs[0])
+    assert "Traceback" not in capfd.readouterr().err
+
+
+class _Interrupted:
+    """A child's pipe end whose next answer is interrupted (Ctrl-C while waiting for it)."""
+
+    def __init__(self, conn):
+        self.conn = conn
+
+    def __getattr__(self, name):
+        return getattr(self.conn, name)
+
+    def recv(self):
+        raise KeyboardInterrupt
+
+
+def test_an_interrupt_while_waiting_for_the_children_ends_them_rather_than_leave_them_a_frame_behind():
+    robot, qs, cams, masks = _scene(3)
+    one = Tracker(robot, cams, q0=qs[0], **WEAK, second_track=TRACKS)
+    with Tracker(robot, cams, q0=qs[0], **WEAK, second_track=TRACKS, jobs=3) as t:
+        np.testing.assert_array_equal(t.step(masks[0]).q, one.step(masks[0]).q)
+        pids = _pids(t)
+        child = t._beside._children[0]
+        child.conn = _Interrupted(child.conn)
+        with pytest.raises(KeyboardInterrupt):
+            t.step(masks[1])
+        with pytest.raises(RuntimeError, match="left out of step by KeyboardInterrupt"):
+            t.step(masks[2])
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in pids)
