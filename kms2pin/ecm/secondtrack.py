@@ -9,7 +9,7 @@ track going on from its own poses, and reports on each frame the pose that fits 
 (IoU at the first tracker's body sizes), then each part of it (:mod:`~kms2pin.ecm.parts`:
 a limb below a hip, a knee, a shoulder, an elbow, ...) taken from the other tracks where
 that fits better: one track may hold an arm that the best-fitting one lost.  Each track
-beside costs about one more track's time; the parts a few milliseconds a frame.
+beside costs about one more track's time; the choice with the parts a few milliseconds a frame.
 """
 
 from __future__ import annotations

@@ -40,6 +40,14 @@ def _alive(pid: int) -> bool:
         return True
 
 
+def _ended(pids: list[int], within_s: float = 10.0) -> bool:
+    """Whether every process of ``pids`` has ended within ``within_s`` seconds."""
+    deadline = time.monotonic() + within_s
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return not any(_alive(p) for p in pids)
+
+
 def _pids(tracker: Tracker) -> list[int]:
     return [c.process.pid for c in tracker._beside._children]
 
@@ -73,10 +81,7 @@ def test_tracks_in_several_processes_are_the_tracks_of_one_to_the_last_bit(jobs)
                 np.testing.assert_array_equal(t.q, mine.q)
         np.testing.assert_array_equal(many.scales, one.scales)
         pids = _pids(many)
-    deadline = time.monotonic() + 10
-    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in pids)
+    assert _ended(pids)
 
 
 def test_the_processes_end_on_close_and_the_tracker_then_says_why_it_cannot_go_on():
@@ -87,10 +92,7 @@ def test_the_processes_end_on_close_and_the_tracker_then_says_why_it_cannot_go_o
     t.step(masks[0])
     t.close()
     t.close()  # twice: nothing more to do
-    deadline = time.monotonic() + 10
-    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in pids)
+    assert _ended(pids)
     with pytest.raises(RuntimeError, match=r"processes were closed \(Tracker.close\)"):
         t.step(masks[1])
     # one process asked, or no track beside: nothing forked, close does nothing
@@ -159,10 +161,7 @@ def test_the_processes_ignore_ctrl_c_and_end_with_a_parent_that_ends_without_clo
     assert out.returncode == 0, out.stderr
     pids = json.loads(out.stdout)
     assert len(pids) == 2
-    deadline = time.monotonic() + 15
-    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not any(_alive(p) for p in pids)
+    assert _ended(pids, 15)
 
 
 @pytest.mark.parametrize("jobs", [0, -1, 1.5, True, "2"])
@@ -216,7 +215,4 @@ def test_an_interrupt_while_waiting_for_the_children_ends_them_rather_than_leave
             t.step(masks[1])
         with pytest.raises(RuntimeError, match="left out of step by KeyboardInterrupt"):
             t.step(masks[2])
-    deadline = time.monotonic() + 10
-    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in pids)
+    assert _ended(pids)
