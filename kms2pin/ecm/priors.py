@@ -20,7 +20,7 @@ from ..native import kernels
 from .limbs import hinged_bodies, sides, twin_name
 
 __all__ = ["MIDLINE_MARGIN", "DepthPrior", "GroundPrior", "MidlinePrior", "RestPrior", "TwistPrior", "UprightPrior",
-           "feet"]
+           "feet", "standing_priors"]
 
 #: the share of its offset from the midline at rest that a twin limb's root keeps before the
 #: midline prior pushes it out, for the arms and for the legs (None: that kind left out): a
@@ -413,3 +413,26 @@ class TwistPrior:
 
     def add(self, A: np.ndarray, g: np.ndarray, q: np.ndarray, data: pin.Data, k: float) -> float:
         return kernels.twist_prior(q, *self._arrays, self.free, k, A, g)
+
+
+def standing_priors(robot, pri, q: np.ndarray, inner: np.ndarray) -> list:
+    """The priors a tracker holds on every frame, from its :class:`~kms2pin.ecm.options.PriorOptions`
+    ``pri`` (each with a weight above 0) for ``robot`` starting at ``q`` with semi-axes
+    ``inner``: the upright, rest, twist, spine-twist and midline priors (the depth prior is
+    the frame's, the ground prior set once the sizes are measured)."""
+    free = robot.root == "free"
+    joint_dofs = np.arange(6 if free else 0, robot.model.nv)  # every dof but a free root's six
+    out: list = []
+    if free and pri.upright > 0:
+        out.append(UprightPrior.at(pri.upright, pri.up, q[:7]))
+    if pri.rest_prior > 0 and joint_dofs.size:
+        rest = q.copy() if pri.rest_pose == "start" else robot.q_rest
+        out.append(RestPrior(pri.rest_prior, robot.model, rest, joint_dofs))
+    twists = (TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) if pri.twist_prior > 0 else None,
+              TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)
+    out += [p for p in twists if p is not None]  # None: no joint to hold
+    if free and pri.midline > 0:
+        midline = MidlinePrior.of(pri.midline, robot, feet(robot, q, inner, pri.up)[0],
+                                  {**MIDLINE_MARGIN, "legs": pri.midline_legs})
+        out += [midline] if midline is not None else []
+    return out

@@ -38,7 +38,7 @@ from .loop import FrameECM, new_timings
 from .masks import Views, check_masks, mask_problem
 from .mstep import BodyView
 from .options import SEGMENTED_MASKS, Preset, TrackerOptions, as_options, resolved, track_changes
-from .priors import MIDLINE_MARGIN, GroundPrior, MidlinePrior, RestPrior, TwistPrior, UprightPrior, feet
+from .priors import GroundPrior, feet, standing_priors
 from .reach import ReachSearch
 from .secondtrack import better
 from .silhouette import IncrementalFit, visible_bodies
@@ -88,20 +88,7 @@ class Tracker:
         self._binned = {c: c.binned(2) for c in self.cameras if min(c.width, c.height) >= 8}
         free = robot.root == "free"
         joint_dofs = np.arange(6 if free else 0, robot.model.nv)  # every dof but a free root's six
-        priors: list = []
-        pri = opts.priors
-        if free and pri.upright > 0:
-            priors.append(UprightPrior.at(pri.upright, pri.up, self.q[:7]))
-        if pri.rest_prior > 0 and joint_dofs.size:
-            rest = self.q.copy() if pri.rest_pose == "start" else robot.q_rest
-            priors.append(RestPrior(pri.rest_prior, robot.model, rest, joint_dofs))
-        twists = (TwistPrior.of(pri.twist_prior, robot, joint_dofs, free_deg=pri.twist_free) if pri.twist_prior > 0
-                  else None,
-                  TwistPrior.spine(pri.spine_twist, robot, joint_dofs, pri.spine_free) if pri.spine_twist > 0 else None)
-        priors += [p for p in twists if p is not None]  # None: no joint to hold
-        midline = MidlinePrior.of(pri.midline, robot, feet(robot, self.q, self.sizes.inner, pri.up)[0],
-                                  {**MIDLINE_MARGIN, "legs": pri.midline_legs}) if free and pri.midline > 0 else None
-        priors += [midline] if midline is not None else []
+        priors = standing_priors(robot, opts.priors, self.q, self.sizes.inner)
         self.ecm = FrameECM(robot, opts, self.sizes, priors)
         self._set_ground(self.q)
         self.limbs = LimbSearch(robot, self.ecm, self._symmetry)
