@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .model import Joint, System, alignment_matrix, perpendicular_axis
+from .model import Joint, ModelSpec, System, alignment_matrix, perpendicular_axis
 from .native import kernels
 
 #: Residual rows of a closure, per joint type.
@@ -347,6 +347,30 @@ def project(closures: Closures, model: pin.Model, data: pin.Data, q: np.ndarray,
             held[_q_to_v(model, np.flatnonzero(clipped))] = True
             any_held = bool(held.any())
     return q, r
+
+
+def open_loops(closures: Closures, data: pin.Data, norms: np.ndarray, tol: float, system: System,
+               spec: ModelSpec) -> list:
+    """A diagnostic of ``spec`` at each closure of ``system`` whose residual norm (``norms``,
+    after a forward pass into ``data``) is above ``tol``: the loop it closes, how far it
+    stays open, and the joints whose rest values could close it."""
+    problems = []
+    for j, norm, (dist, angle) in zip(system.closures, norms, closures.gaps(data)):
+        if norm <= tol:
+            continue
+        bodies, joints = system.loop(j)
+        loop = " -> ".join("inertial frame" if b is None else b for b in [*bodies, bodies[0]])
+        what = {"revolute": "axes", "prismatic": "orientations", "fixed": "orientations"}.get(j.kind)
+        apart = f"its ends {dist:.3g} apart" + (f" and their {what} {angle:.3g} deg apart" if what else "")
+        if j.kind == "prismatic":
+            apart = f"the child's point {dist:.3g} from the parent's line and the orientations {angle:.3g} deg apart"
+        problems.append(spec.diagnostic(
+            j.loc,
+            f"this {j.kind} joint closes the loop {loop}, but the loop cannot be closed near the rest pose: "
+            f"the nearest configuration found leaves {apart}; change the bound vectors of its bodies or the "
+            f"rest values of its joints ({', '.join(t.name for t in joints)})",
+        ))
+    return problems
 
 
 def _q_to_v(model: pin.Model, iq: np.ndarray) -> np.ndarray:

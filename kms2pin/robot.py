@@ -14,17 +14,18 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
 
 import numpy as np
 import pinocchio as pin
 
-from .closures import Closures, project
+from .closures import Closures, open_loops, project
+from .coordinates import Coordinates, quaternion_matrix
+from .coordinates import JointCoordinates as JointCoordinates  # where it was first
 from .errors import RobotError, SpecError, did_you_mean
 from .lang import looks_like_path, parse, parse_text, read_spec
-from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_angles, xyz_rotation
+from .model import Joint, ModelSpec, System, rest_joint_transform, xyz_rotation
 from .native import kernels
 from .pinmodel import build_model
 from .urdf import (
@@ -33,11 +34,9 @@ from .urdf import (
     check_root_joint_name,
     rest_values,
     root_joint_clash,
-    spherical_parts,
     to_srdf,
     to_urdf,
     urdf_number,
-    wrap_angle,
 )
 
 ROOTS = ("spec", "free")
@@ -49,35 +48,9 @@ _UNIT_LO2, _UNIT_HI2 = 1.0 - _UNIT_TOL, 1.0 + _UNIT_TOL  # squared norms a quate
 _ZERO_NORM = 1e-12
 #: Largest |R R^T - I| entry :func:`euler_parameters` accepts as a rotation.
 _ROTATION_TOL = 1e-6
-#: Names of a free root's 7 coordinates of q (``root_<part>``, also the trajectory CSV's columns).
-_FREE_FLYER_COORDINATES = tuple(f"root_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))
 #: A loop closure holds when its residual is below this times the model's size (its largest
 #: bound-vector coordinate, at least 1).
 CLOSURE_TOL = 1e-9
-
-
-@dataclass(frozen=True)
-class JointCoordinates:
-    """One Pinocchio joint of a :class:`Robot` and its coordinates.
-
-    ``kind`` is ``"free"`` for a free-flyer root, else the spec joint's type (``spec``;
-    None for the free flyer); ``idx_q``, ``idx_v``, ``nq`` locate it in q and v;
-    ``names`` are its columns of a trajectory CSV (:meth:`Robot.coordinates`).
-    """
-
-    name: str
-    kind: str
-    idx_q: int
-    idx_v: int
-    nq: int
-    names: tuple[str, ...]
-    spec: Joint | None
-
-
-def quaternion_matrix(xyzw: np.ndarray) -> np.ndarray:
-    """The rotation of a Pinocchio quaternion (x, y, z, w), normalized."""
-    x = np.asarray(xyzw, dtype=float)
-    return pin.Quaternion(x[3], x[0], x[1], x[2]).normalized().toRotationMatrix()
 
 
 def check_free_root(system: System, spec: ModelSpec | None = None) -> None:
@@ -118,7 +91,8 @@ class Robot:
         urdf, srdf: the generated text (meshes referenced as ``meshes/unit_sphere.obj``).
         bodies: body names in traversal (preorder) order.
         joint_names: Pinocchio joint names in ``q`` order.
-        joints: a :class:`JointCoordinates` per Pinocchio joint, in ``q`` order.
+        coords: the named coordinates (:class:`~kms2pin.coordinates.Coordinates`).
+        joints: a :class:`~kms2pin.coordinates.JointCoordinates` per Pinocchio joint, in ``q`` order.
         coordinate_names: the columns of a trajectory CSV (:meth:`coordinates`): a free
             root's ``root_x, root_y, root_z, root_qx, root_qy, root_qz, root_qw``, then
             each revolute or prismatic joint's name and a spherical joint's
@@ -163,8 +137,9 @@ class Robot:
         scale = max([1.0] + [abs(x) for b in system.bodies for v in b.bvecs.values() for x in v.pos])
         self._closure_tol = CLOSURE_TOL * scale
         self.joint_names = tuple(self.model.names[1:])
-        self.joints = self._joint_coordinates()
-        self.coordinate_names = tuple(n for j in self.joints for n in j.names)
+        self.coords = Coordinates(self.model, system)
+        self.joints = self.coords.joints
+        self.coordinate_names = self.coords.names
         self.lower_limits = np.full(self.model.nq, -np.inf)
         self.upper_limits = np.full(self.model.nq, np.inf)
         for j in self.joints:
@@ -205,17 +180,6 @@ class Robot:
         return self.model.addFrame(
             pin.Frame(f"{body}_centre", frame.parentJoint, link, placement, pin.FrameType.OP_FRAME)
         )
-
-    def _joint_coordinates(self) -> tuple[JointCoordinates, ...]:
-        by_name = {j.name: j for j in self.system.joints}
-        out = []
-        for jid in range(1, self.model.njoints):
-            jm, name = self.model.joints[jid], self.model.names[jid]
-            spec = by_name.get(name)
-            kind = "free" if spec is None else spec.kind
-            names = {"free": _FREE_FLYER_COORDINATES, "spherical": tuple(f"{name}_{a}" for a in "xyz")}
-            out.append(JointCoordinates(name, kind, jm.idx_q, jm.idx_v, jm.nq, names.get(kind, (name,)), spec))
-        return tuple(out)
 
     def _rest_configuration(self) -> np.ndarray:
         """The spec's rest pose as a Pinocchio q: the SRDF's group state "rest" (its
@@ -288,112 +252,40 @@ class Robot:
         norms = self._closures.norms(r)
         if (norms <= self._closure_tol).all():
             return q
-        gaps = self._closures.gaps(self.data)
-        problems = []
-        for j, norm, (dist, angle) in zip(self.closures, norms, gaps):
-            if norm <= self._closure_tol:
-                continue
-            bodies, joints = self.system.loop(j)
-            loop = " -> ".join("inertial frame" if b is None else b for b in [*bodies, bodies[0]])
-            what = {"revolute": "axes", "prismatic": "orientations", "fixed": "orientations"}.get(j.kind)
-            apart = f"its ends {dist:.3g} apart" + (f" and their {what} {angle:.3g} deg apart" if what else "")
-            if j.kind == "prismatic":
-                apart = f"the child's point {dist:.3g} from the parent's line and the orientations {angle:.3g} deg apart"
-            problems.append(self.spec.diagnostic(
-                j.loc,
-                f"this {j.kind} joint closes the loop {loop}, but the loop cannot be closed near the rest pose: "
-                f"the nearest configuration found leaves {apart}; change the bound vectors of its bodies or the "
-                f"rest values of its joints ({', '.join(t.name for t in joints)})",
-            ))
+        problems = open_loops(self._closures, self.data, norms, self._closure_tol, self.system, self.spec)
         raise SpecError(problems)
 
+    # ------------------------------------------------------------------ coordinates
     def joint_blocks(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Each Pinocchio joint's coordinates in ``q`` by joint name (a free root's seven as
         ``root_joint``)."""
-        return {j.name: np.array(q[j.idx_q : j.idx_q + j.nq], dtype=float) for j in self.joints}
+        return self.coords.blocks(q)
 
     def urdf_values(self, q: np.ndarray) -> dict[str, object]:
         """The URDF joints' values at ``q`` (the SRDF's group state): revolute angles (radians;
         in (-pi, pi] without limits), a spherical joint's three angles, prismatic offsets, a
         free root's 7 numbers (x, y, z, qx, qy, qz, qw)."""
-        out: dict[str, object] = {}
-        for j in self.joints:
-            block = q[j.idx_q : j.idx_q + j.nq]
-            if j.kind == "free":
-                out[ROOT_JOINT] = block.copy()
-            elif j.kind == "spherical":
-                out.update(zip(spherical_parts(j.name)[0], (float(a) for a in xyz_angles(quaternion_matrix(block)))))
-            elif j.kind == "revolute":
-                out[j.name] = float(block[0]) if j.spec.limits is not None else wrap_angle(float(block[0]))
-            elif j.nq:
-                out[j.name] = float(block[0])
-        return out
+        return self.coords.urdf_values(q)
 
-    # ------------------------------------------------------------------ coordinates
     def coordinates(self, q: np.ndarray) -> np.ndarray:
         """Configurations ``q`` (nq,) or (T, nq) as the trajectory CSV's coordinates
         (:attr:`coordinate_names`): a free root's 7 entries as they are, revolute angles
         and a spherical joint's X-Y-Z angles (R = Rx Ry Rz, the URDF's three joints) in
         degrees, prismatic offsets in spec length units.  Does not validate ``q``."""
-        q = np.asarray(q, dtype=float)
-        rows = q.reshape(-1, self.model.nq)
-        out = np.empty((len(rows), len(self.coordinate_names)))
-        c = 0
-        for j in self.joints:
-            block = rows[:, j.idx_q : j.idx_q + j.nq]
-            if j.kind == "spherical":
-                out[:, c : c + 3] = np.reshape([np.degrees(xyz_angles(quaternion_matrix(x))) for x in block], (-1, 3))
-            elif j.kind == "revolute":
-                out[:, c] = np.degrees(block[:, 0])
-            else:
-                out[:, c : c + j.nq] = block
-            c += len(j.names)
-        return out.reshape(*q.shape[:-1], c)
+        return self.coords.to_csv(q)
 
     def configuration(self, coordinates: np.ndarray) -> np.ndarray:
         """The inverse of :meth:`coordinates`: (n_coordinates,) or (T, n_coordinates) CSV
         coordinates to Pinocchio configurations (a spherical joint's quaternion from its
         three angles).  Does not validate."""
-        c = np.asarray(coordinates, dtype=float)
-        rows = c.reshape(-1, len(self.coordinate_names))
-        q = np.empty((len(rows), self.model.nq))
-        k = 0
-        for j in self.joints:
-            block = rows[:, k : k + len(j.names)]
-            if j.kind == "spherical":
-                q[:, j.idx_q : j.idx_q + 4] = np.reshape(
-                    [pin.Quaternion(xyz_rotation(np.radians(a))).coeffs() for a in block], (-1, 4))
-            elif j.kind == "revolute":
-                q[:, j.idx_q] = np.radians(block[:, 0])
-            else:
-                q[:, j.idx_q : j.idx_q + j.nq] = block
-            k += len(j.names)
-        return q.reshape(*c.shape[:-1], self.model.nq)
+        return self.coords.from_csv(coordinates)
 
     def with_coordinates(self, q: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
         """A copy of ``q`` with the named coordinates (:attr:`coordinate_names`, in the CSV's
         units: degrees, spec length units, a free root's raw entries) set; a spherical joint's
         angles left out keep their values at ``q``.  KeyError for an unknown name; the
         values are not checked against limits."""
-        q = np.array(q, dtype=float)
-        where = self._coordinate_slots
-        spherical: dict[JointCoordinates, np.ndarray] = {}
-        for name, value in values.items():
-            j, k = where[name]
-            if j.kind == "spherical":
-                if j not in spherical:
-                    spherical[j] = np.degrees(xyz_angles(quaternion_matrix(q[j.idx_q : j.idx_q + 4])))
-                spherical[j][k] = value
-            else:
-                q[j.idx_q + k] = math.radians(value) if j.kind == "revolute" else value
-        for j, angles in spherical.items():
-            q[j.idx_q : j.idx_q + 4] = pin.Quaternion(xyz_rotation(np.radians(angles))).coeffs()
-        return q
-
-    @cached_property
-    def _coordinate_slots(self) -> dict[str, tuple[JointCoordinates, int]]:
-        """Coordinate name -> (its joint, its position among the joint's coordinates)."""
-        return {n: (j, k) for j in self.joints for k, n in enumerate(j.names)}
+        return self.coords.with_values(q, values)
 
     # ------------------------------------------------------------------ shapes
     def _body(self, name: str):

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from ..robot import JointCoordinates, Robot, quaternion_matrix
+from ..coordinates import JointCoordinates, quaternion_matrix
+from ..robot import Robot
 from .limbs import left_right_pairs, limb_joints, movable, twin_name
 from .loop import FrameECM
 from .masks import Views

@@ -29,8 +29,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from ..coordinates import JointCoordinates
 from ..errors import Kms2pinError, RobotError
-from ..robot import JointCoordinates, Robot
+from ..robot import Robot
 
 MOTIONS = ("sweep", "walk", "random")
 FPS = 30.0

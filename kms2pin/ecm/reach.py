@@ -51,7 +51,8 @@ import cv2
 import numpy as np
 import pinocchio as pin
 
-from ..robot import JointCoordinates, Robot
+from ..coordinates import JointCoordinates
+from ..robot import Robot
 from .limbs import Sides, sides
 from .limbsearch import SCREEN_ITERATIONS, LimbMove
 from .loop import FrameECM

@@ -29,7 +29,8 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from ..robot import JointCoordinates, Robot, quaternion_matrix
+from ..coordinates import JointCoordinates, quaternion_matrix
+from ..robot import Robot
 from .limbs import is_left, sagittal_mirror, twin_name
 
 __all__ = ["MIRROR_TOLERANCE", "SAME_AXIS", "Symmetry", "spherical_angle"]

@@ -197,7 +197,7 @@ def _closed_pose(robot: Robot, q: np.ndarray, values: dict[str, float]) -> np.nd
     """``q`` with the named coordinates set, the loops closed after each of a few steps there
     (:data:`LOOP_STEP_DEG`) with those joints held (:meth:`Robot.project`)."""
     target = robot.with_coordinates(q, values)
-    joints = {robot._coordinate_slots[n][0] for n in values}
+    joints = robot.coords.joints_of(list(values))
     held = [v for j in joints for v in range(j.idx_v, j.idx_v + (3 if j.kind == "spherical" else 1))]
     d = pin.difference(robot.model, q, target)
     scale = np.full(len(d), math.radians(LOOP_STEP_DEG))
