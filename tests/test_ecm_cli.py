@@ -499,17 +499,19 @@ def test_preset_people_one_camera_is_changed_by_the_other_flags(tmp_path, capsys
     assert meta["rest_prior"] == 0.01 and meta["upright"] == 0.2  # the preset, and the flag over it
 
 
-@pytest.mark.parametrize("name", ["people", "people-one-camera", "segmented-masks"])
+@pytest.mark.parametrize("name", ["people", "people-tracks", "people-one-camera", "segmented-masks"])
 def test_the_flags_the_help_gives_for_a_preset_make_its_options(name):
-    """`track --help` spells each preset as flags; those flags, parsed, give the preset's options."""
+    """`track --help` spells each preset as flags; those flags, split as a shell would, give the
+    preset's options."""
     import argparse
+    import shlex
 
     from kms2pin.commands._tracking import PRESETS, add_tracker_arguments, preset_flags, tracker_options
 
     p = argparse.ArgumentParser()
     add_tracker_arguments(p)
     assert name in p.format_help()
-    by_flags = tracker_options(p.parse_args(preset_flags(PRESETS[name]).split()))
+    by_flags = tracker_options(p.parse_args(shlex.split(preset_flags(PRESETS[name]))))
     by_preset = tracker_options(p.parse_args(["--preset", name]))
     assert by_flags == by_preset != tracker_options(p.parse_args([]))
 
@@ -663,6 +665,25 @@ def test_stretches_writes_each_stretch_from_the_track_that_fits_it_and_smooth_us
     assert int(note[4]) == sum("' taken from the first track" in r or "' taken from the second track" in r for r in rows)
     assert int(note[5]) == sum("' taken from the frames beside it" in r for r in rows)
     _smoothed_and_scored(robot, out, masks, kept, "--stretches", capsys)
+
+
+def test_the_people_tracks_preset_runs_the_guides_offline_command(tmp_path, cams2, capsys):
+    """The tracking guide's choice for a finished recording, ``--preset people-tracks
+    --stretches --jobs 2``: four tracks (the first and the preset's three beside it), the
+    stretches chosen among the four, the options recorded as the preset's."""
+    from kms2pin.ecm.options import PEOPLE_TRACKS
+
+    masks = _synth(tmp_path, cams2, frames=4)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--preset", "people-tracks",
+                 "--stretches", "--jobs", "2", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "--stretches: the poses of 4 frames:" in err, err
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["stretches_tracks"] == 4
+    flat = {name: value for group in meta["options"].values() for name, value in group.items()}
+    assert flat["second_track"] == PEOPLE_TRACKS["second_track"] and flat["reach_rest"] == 0
+    assert len((out / "stretches.csv").read_text().splitlines()) == 1 + 4
 
 
 def test_stretches_without_a_track_beside_or_with_both_ways_is_refused(tmp_path, cams2, capsys):

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import shlex
 
 from ..ecm.options import (
     PEOPLE,
     PEOPLE_ONE_CAMERA,
+    PEOPLE_TRACKS,
     SEGMENTED_MASKS,
     Preset,
     TrackerOptions,
@@ -28,11 +30,13 @@ from ._common import number
 __all__ = ["PRESETS", "add_tracker_arguments", "tracker_options"]
 
 #: ``--preset``'s names for the presets of :mod:`kms2pin.ecm.options` (docs/tracking.md)
-PRESETS = {"people": PEOPLE, "people-one-camera": PEOPLE_ONE_CAMERA, "segmented-masks": SEGMENTED_MASKS}
+PRESETS = {"people": PEOPLE, "people-tracks": PEOPLE_TRACKS, "people-one-camera": PEOPLE_ONE_CAMERA,
+           "segmented-masks": SEGMENTED_MASKS}
 
 
 def preset_flags(preset: Preset) -> str:
-    """A preset as the flags that give the same options (``--prediction learnt --reach-search``)."""
+    """A preset as the flags that give the same options (``--prediction learnt --reach-search``),
+    quoted for a POSIX shell."""
     fields = {f.name: f for f in cli_fields()}
     words = []
     for name, value in preset.overrides.items():
@@ -41,7 +45,7 @@ def preset_flags(preset: Preset) -> str:
             off = flag.startswith("--no-")
             words.append(flag if value == (not off) else f"({name} {value})")
         else:
-            words.append(f"{flag} {value:g}" if isinstance(value, float) else f"{flag} {value}")
+            words.append(f"{flag} {value:g}" if isinstance(value, float) else f"{flag} {shlex.quote(str(value))}")
     return " ".join(words)
 
 

@@ -16,6 +16,7 @@ from kms2pin.ecm.motions import MOTIONS, make_motion
 from kms2pin.ecm.options import (
     PEOPLE,
     PEOPLE_ONE_CAMERA,
+    PEOPLE_TRACKS,
     SEGMENTED_MASKS,
     HypothesisOptions,
     IterationOptions,
@@ -56,6 +57,7 @@ __all__ = [
     "MStepOptions",
     "PEOPLE",
     "PEOPLE_ONE_CAMERA",
+    "PEOPLE_TRACKS",
     "PriorOptions",
     "ProjectionError",
     "SEGMENTED_MASKS",

@@ -483,6 +483,15 @@ PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": Fals
 #: hold what one view does not fix (the rest: the starting pose, the way the subject
 #: stands; the ground: the floor at the lowest foot of q0, along ``up``; docs/tracking.md,
 #: docs/design/tracking-history.md)
+#: :data:`PEOPLE` with three tracks beside it (``second_track``): the thighs held off the
+#: midline, that and the legs' midline prior, a shorter motion memory; each frame the
+#: best-fitting pose of the four, then each part from the others where that fits better.
+#: The most accurate online choice with two or more cameras, at about a fifth of
+#: ``PEOPLE``'s frames/s (``jobs`` spreads the tracks over processes); offline add
+#: ``track --stretches`` (docs/tracking.md, "Real motion")
+PEOPLE_TRACKS = Preset("people, four tracks", {**PEOPLE.overrides,
+                                               "second_track": "midline=1; midline=1,midline_legs=0.1; "
+                                                               "prediction_memory=3"})
 PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "rest_pose": "start",
                                                   "ground": 0.1})
 

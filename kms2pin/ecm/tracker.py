@@ -57,7 +57,7 @@ class Tracker:
     Args:
         robot: the model (``root="free"`` for a moving subject).
         cameras: one :class:`Camera` per mask stream, or a single camera.
-        options: a :class:`TrackerOptions` or a preset (``SEGMENTED_MASKS``, ``PEOPLE``,
+        options: a :class:`TrackerOptions` or a preset (``SEGMENTED_MASKS``, ``PEOPLE``, ``PEOPLE_TRACKS``,
             ``PEOPLE_ONE_CAMERA``); default the defaults.
         q0: starting pose (default ``robot.q_rest``); every camera must see part of
             the model there, else :class:`CameraError`.

@@ -16,6 +16,7 @@ from kms2pin.ecm.options import (
     GROUPS,
     PEOPLE,
     PEOPLE_ONE_CAMERA,
+    PEOPLE_TRACKS,
     SEGMENTED_MASKS,
     IterationOptions,
     LimbSearchOptions,
@@ -102,6 +103,23 @@ def test_options_and_keywords_give_the_same_track():
     shared = {k: v for k, v in dict(PEOPLE).items() if k not in twists}
     assert shared.items() <= dict(PEOPLE_ONE_CAMERA).items()
     assert not set(twists) & set(dict(PEOPLE_ONE_CAMERA))
+
+
+def test_people_tracks_is_people_with_three_tracks_beside_each_changed_as_documented():
+    """``PEOPLE_TRACKS``: ``PEOPLE``'s options for the first track, and three tracks beside
+    it, each ``PEOPLE`` with its own changes (the thighs off the midline; that and the legs'
+    midline prior; a shorter motion memory), going on by themselves."""
+    robot = _robot("fullbody")
+    cams = [Camera.default(), Camera.default()]
+    four = Tracker(robot, cams, PEOPLE_TRACKS)
+    people = Tracker(robot, cams, PEOPLE)
+    assert four.options.replace(second_track="") == people.options
+    beside = four.tracks_beside
+    assert len(beside) == 3
+    changes = [{"midline": 1.0}, {"midline": 1.0, "midline_legs": 0.1}, {"prediction_memory": 3.0}]
+    for track, changed in zip(beside, changes):
+        assert track.options == people.options.replace(**changed)
+        assert track.options.flat().items() >= changed.items()
 
 
 def test_overrides_go_over_the_options_and_each_option_is_in_one_group():
