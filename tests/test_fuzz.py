@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 import pytest
 from conftest import SPEC_NAMES, SPECS
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import kms2pin
@@ -346,9 +346,7 @@ def test_camera_files_raise_only_camera_error(tmp_path_factory, value):
             assert str(err).startswith(str(path)), err
             return
         for cam in cameras:
-            px = cam.project(np.array([[0.1, 0.2, 1.0], [0.0, 0.0, 5.0]]))
-            assert np.isfinite(px).all() or np.isnan(px).any()
-            assert 1 <= cam.width <= 8192 and 1 <= cam.height <= 8192
+            _check_projection(cam)
 
 
 @settings(max_examples=_n(100), **SETTINGS)
@@ -356,9 +354,79 @@ def test_camera_files_raise_only_camera_error(tmp_path_factory, value):
 def test_camera_files_of_random_bytes_raise_only_camera_error(tmp_path_factory, data):
     path = _write(tmp_path_factory, data, ".json")
     try:
-        Camera.list_from_json(path)
-    except kms2pin.CameraError:
-        pass
+        cameras = Camera.list_from_json(path)
+    except kms2pin.CameraError as err:
+        assert str(err).startswith(str(path)), err
+        return
+    for cam in cameras:  # random bytes that happen to be a camera: it projects as the pinhole model says
+        _check_projection(cam)
+
+
+def _brown_projection(cam: Camera, p: np.ndarray) -> np.ndarray:
+    """Pixels of world points ``p`` by the pinhole and Brown-Conrady model written out
+    (OpenCV's k1, k2, p1, p2, k3), from the camera's K, pose and dist; NaN at or behind it."""
+    R, t, K = cam.world_R_camera, cam.world_T_camera.translation, cam.K
+    d = np.zeros(5) if cam.dist is None else np.r_[cam.dist, np.zeros(5)][:5]
+    k1, k2, p1, p2, k3 = d
+    out = np.full((len(p), 2), np.nan)
+    for n, x in enumerate(p):
+        c = R.T @ (x - t)
+        if c[2] <= 0:
+            continue
+        u, v = c[0] / c[2], c[1] / c[2]
+        r2 = u * u + v * v
+        radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 ** 3
+        ud = u * radial + 2 * p1 * u * v + p2 * (r2 + 2 * u * u)
+        vd = v * radial + p1 * (r2 + 2 * v * v) + 2 * p2 * u * v
+        out[n] = K[0, 0] * ud + K[0, 2], K[1, 1] * vd + K[1, 2]
+    return out
+
+
+POINTS = np.array([[0.1, 0.2, 1.0], [0.0, 0.0, 5.0], [-2.0, 1.0, -4.0], [3.0, -1.0, 0.5]])
+
+
+def _check_projection(cam: Camera) -> None:
+    assert 1 <= cam.width <= 8192 and 1 <= cam.height <= 8192
+    px = cam.project(POINTS)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")  # the model written out may overflow where OpenCV's does too
+        expected = _brown_projection(cam, POINTS)
+    if cam.dist is not None and len(cam.dist) > 5:  # the rational and thin-prism terms: not written out here
+        expected[np.isfinite(expected).all(axis=1)] = px[np.isfinite(expected).all(axis=1)]
+    np.testing.assert_allclose(px, expected, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(np.isnan(px).any(axis=1), cam.depth(POINTS) <= 0)  # NaN exactly behind the camera
+
+
+@st.composite
+def valid_camera(draw) -> dict:
+    """A camera file's dict within every field's range: focal lengths, principal point,
+    a rotation from a random quaternion, a translation, no or 4 or 5 distortion terms."""
+    f = st.floats(1.0, 5000.0)
+    quat = np.array(draw(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)))
+    quat = quat / np.linalg.norm(quat) if np.linalg.norm(quat) > 1e-3 else np.array([0.0, 0.0, 0.0, 1.0])
+    import pinocchio as pin
+
+    R = pin.Quaternion(quat[3], quat[0], quat[1], quat[2]).toRotationMatrix()
+    cam = {"name": "c", "width": draw(st.integers(1, 4000)), "height": draw(st.integers(1, 4000)),
+           "K": [[draw(f), 0, draw(st.floats(-1000, 1000))], [0, draw(f), draw(st.floats(-1000, 1000))], [0, 0, 1]],
+           "world_T_camera": {"rotation": R.tolist(),
+                              "translation": draw(st.lists(st.floats(-100, 100), min_size=3, max_size=3))}}
+    n = draw(st.sampled_from([None, 4, 5]))
+    if n is not None:
+        cam["dist"] = draw(st.lists(st.floats(-0.5, 0.5), min_size=n, max_size=n))
+    return cam
+
+
+@settings(max_examples=_n(200), **SETTINGS)
+@given(valid_camera())
+def test_a_valid_camera_file_is_read_and_projects_as_the_pinhole_and_distortion_model_say(tmp_path_factory, value):
+    path = _write(tmp_path_factory, json.dumps(value), ".json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (cam,) = Camera.list_from_json(path)
+    np.testing.assert_array_equal(cam.K, np.array(value["K"], dtype=float))
+    assert (cam.width, cam.height) == (value["width"], value["height"])
+    _check_projection(cam)
 
 
 POSE = {"joints": {"leftThigh_hip": 70, "leftShin_knee": 30},
@@ -422,6 +490,63 @@ def test_trajectory_csvs_raise_only_input_data_error(tmp_path_factory, walker, d
         for q in traj.q:
             assert abs(np.linalg.norm(q[3:7]) - 1) < 1e-9
             assert np.isfinite(walker.maximal_coordinates(q)).all()
+
+
+@pytest.fixture(scope="module")
+def walker_csv(walker, tmp_path_factory) -> tuple[str, np.ndarray]:
+    """A trajectory CSV of three random poses as ``to_csv`` writes it, and their configurations."""
+    from kms2pin.ecm import Trajectory
+    from kms2pin.ecm.motions import make_motion
+
+    q = make_motion(walker, "random", 3, np.random.default_rng(5))
+    path = tmp_path_factory.mktemp("csv") / "walk.csv"
+    Trajectory(walker, q).to_csv(path)
+    return path.read_text(), q
+
+
+@settings(max_examples=_n(300), **SETTINGS)
+@given(st.data())
+def test_a_trajectory_csv_with_one_cell_changed_reads_to_its_poses_or_names_the_cell(tmp_path_factory, walker,
+                                                                                     walker_csv, data):
+    """A valid file with one data cell replaced: either an InputDataError naming the file and
+    the cell's line and column, or the poses the cells say (a scaled root quaternion read as
+    the same rotation, every body pose finite), the other frames unchanged."""
+    from kms2pin.ecm import Trajectory
+
+    text, q = walker_csv
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    row = data.draw(st.integers(1, len(lines) - 1))
+    col = data.draw(st.integers(1, len(header) - 1))  # not the frame number
+    cell = data.draw(CSV_CELLS.filter(lambda c: "," not in c and '"' not in c and "\x00" not in c))
+    cells = lines[row].split(",")
+    cells[col] = cell
+    lines[row] = ",".join(cells)
+    path = _write(tmp_path_factory, "\n".join(lines) + "\n", ".csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            traj = Trajectory.from_csv(walker, path)
+        except kms2pin.InputDataError as err:
+            assert str(err).startswith(f"{path}:{row + 1}:"), err
+            event("refused")
+            return
+    event("read")
+    assert traj.q.shape == q.shape and np.isfinite(traj.q).all()
+    others = [k for k in range(len(q)) if k != row - 1]
+    np.testing.assert_allclose(traj.q[others], q[others], atol=1e-6)  # the CSV's printed digits
+    value = float(cell)
+    name = header[col]
+    if name.startswith("root_q"):  # the quaternion renormalized: the same rotation as the cells say
+        cells_q = np.array([float(c) for c in lines[row].split(",")[4:8]])
+        cells_q /= np.abs(cells_q).max()  # scaled first: 1e308 squared overflows
+        assert abs(np.linalg.norm(traj.q[row - 1, 3:7]) - 1) < 1e-12
+        np.testing.assert_allclose(np.abs(traj.q[row - 1, 3:7] @ cells_q) / np.linalg.norm(cells_q), 1, atol=1e-9)
+    elif name.startswith("root_"):
+        assert traj.q[row - 1, "xyz".index(name[-1])] == value
+    else:
+        np.testing.assert_allclose(walker.coordinates(traj.q[row - 1])[col - 1], value, rtol=1e-12, atol=1e-9)
+    assert np.isfinite(walker.maximal_coordinates(traj.q[row - 1])).all()
 
 
 # ----------------------------------------------------------------------------- the joint-control page

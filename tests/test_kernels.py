@@ -760,14 +760,19 @@ def test_use_switches_every_kernel_and_restores_the_choice():
         assert all(getattr(k, n) is native.implementations(n)["numpy"] for n in native.NAMES)
     assert {name: getattr(native.kernels, name) for name in native.NAMES} == before
     assert native.ENABLED == enabled
-    if native.BUILT:
-        with native.use("c"):
-            assert native.ENABLED
-            assert all(getattr(native.kernels, n) is native.implementations(n)["c"] for n in native.NAMES)
     with pytest.raises(ValueError, match="one of c, numpy"), native.use("fortran"):
         pass
     with pytest.raises(KeyError, match="no kernel 'fit'"):
         native.implementations("fit")
+
+
+def test_use_c_switches_every_kernel_to_the_extension():
+    require_kernels()
+    enabled = native.ENABLED
+    with native.use("c"):
+        assert native.ENABLED
+        assert all(getattr(native.kernels, n) is native.implementations(n)["c"] for n in native.NAMES)
+    assert native.ENABLED == enabled
 
 
 def test_the_extension_has_exactly_the_numpy_kernels():

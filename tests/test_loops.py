@@ -16,7 +16,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import SPECS
+from conftest import SPECS, require_kernels
 from scipy.optimize import minimize
 
 import kms2pin
@@ -192,8 +192,8 @@ def test_closure_curvature_is_the_symmetrised_derivative_of_the_jacobian(kind, b
     """Σ λ ∇²r (the constraints' part of the Lagrangian's Hessian) against central differences
     of λᵀ J along pin.integrate, symmetrised (the tangent chart's Hessian); a fixed closure's
     along the closed configurations only, where its kernel rows agree with -log6."""
-    if backend == "c" and not native.BUILT:
-        pytest.skip("the C kernels are not built")
+    if backend == "c":
+        require_kernels()
     robot = load(kind, "free")
     rng = np.random.default_rng(10 + KINDS.index(kind))
     q = robot.random_configuration(rng, 30.0)
@@ -366,8 +366,7 @@ def test_the_equilibrium_is_no_higher_than_slsqps_from_several_starts(name):
 
 @pytest.mark.parametrize("name", ["delta", "fourbar"])
 def test_c_and_numpy_kernels_give_the_same_closed_update(name):
-    if not native.BUILT:
-        pytest.skip("the C kernels are not built")
+    require_kernels()
     robot = load(name)
     for q0, t in updates(robot, 2, seed=2):
         with native.use("c"):
@@ -461,7 +460,7 @@ def test_the_urdf_is_the_spanning_tree_and_the_side_file_closes_at_the_srdfs_res
 
 
 def mujoco_model(robot):
-    mujoco = pytest.importorskip("mujoco")
+    import mujoco  # a test dependency: a broken install fails here, not skips
     with warnings.catch_warnings(record=True):
         warnings.simplefilter("always")
         xml = to_mjcf(robot.system, "x.kms", rest=robot.joint_blocks(robot.q_rest))

@@ -77,6 +77,8 @@ def test_the_readme_quick_start_is_what_ci_runs():
     assert len(commands) == 2
     for command in commands:
         assert command in ci
+    # nothing a new user's machine has may be skipped in CI (tests/conftest.py: skip_or_fail_in_ci)
+    assert re.search(r"^export CI=1$", ci, re.M)
 
 
 def test_the_export_guides_other_tools_example_runs_and_agrees_with_kms2pin(tmp_path, monkeypatch, capsys):
