@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from conftest import PNG, set_csv_cell
 
@@ -92,6 +93,44 @@ def test_without_a_camera_there_is_no_depth_split_and_angles_wrap(hand):
     assert "depth_error_pct" not in rep
     assert rep["joint_rmse_deg"]["tip1_joint"] == pytest.approx(0.0, abs=1e-9)
     assert rep["mean_centre_error_pct"] < 1e-9
+
+
+def test_the_angle_errors_are_the_offsets_put_in(hand):
+    """10° added to m of the hand's n revolute joints on every frame (alternately + and -):
+    those joints' RMSE 10°, the others' 0, the revolute RMSE sqrt(m 10² / n); on the human,
+    a spherical joint turned 7° about a fixed axis on every frame: its RMSE 7°; the worst
+    frame is the one the root was moved on, its error the bodies' mean distance there."""
+    robot, truth = hand
+    revolute = [j for j in robot.joints if j.kind == "revolute"]
+    moved = revolute[::3]
+    q = truth.copy()
+    for n, j in enumerate(moved):
+        q[:, j.idx_q] += np.radians(10.0) * (1 if n % 2 else -1)
+    q[17, :3] += [0.5 * robot.height, 0.0, 0.0]  # the root moved on one frame only: the worst frame
+    rep = evaluate(robot, Trajectory(robot, q), Trajectory(robot, truth))
+    for j in revolute:
+        assert rep["joint_rmse_deg"][j.name] == pytest.approx(10.0 if j in moved else 0.0, abs=1e-9)
+    assert rep["revolute_rmse_deg"] == pytest.approx(np.sqrt(len(moved) * 100.0 / len(revolute)), rel=1e-9)
+    # each frame's error: the mean over the bodies of the centres' distance, % of the height
+    a = np.array([robot.maximal_coordinates(x)[:, :3] for x in q])
+    b = np.array([robot.maximal_coordinates(x)[:, :3] for x in truth])
+    per_frame = np.linalg.norm(a - b, axis=2).mean(axis=1) / robot.height * 100
+    np.testing.assert_allclose(rep["per_frame_centre_error_pct"], per_frame, rtol=1e-9)
+    assert rep["worst_frame"] == int(np.argmax(per_frame)) == 17
+    assert rep["worst_frame_error_pct"] == pytest.approx(per_frame[17], rel=1e-12)
+
+    human = load(DIR / "human.kms", root="free")
+    truth_h = make_motion(human, "random", 6, np.random.default_rng(1))
+    (j,) = [j for j in human.joints if j.kind == "spherical"][:1]
+    turn = pin.Quaternion(pin.exp3(np.radians(7.0) * np.array([0.6, 0.0, 0.8]))).coeffs()
+    qh = truth_h.copy()
+    for k in range(len(qh)):  # the joint's rotation turned by 7° after its own: R' = R exp(7° axis)
+        r = pin.Quaternion(*np.roll(qh[k, j.idx_q : j.idx_q + 4], 1)) * pin.Quaternion(*np.roll(turn, 1))
+        qh[k, j.idx_q : j.idx_q + 4] = r.coeffs()
+    rep = evaluate(human, Trajectory(human, qh), Trajectory(human, truth_h))
+    assert rep["joint_rmse_deg"][j.name] == pytest.approx(7.0, abs=1e-9)
+    n_sph = sum(1 for x in human.joints if x.kind == "spherical")
+    assert rep["spherical_rmse_deg"] == pytest.approx(np.sqrt(49.0 / n_sph), rel=1e-9)
 
 
 def test_trajectories_of_different_lengths_are_compared_on_the_common_frames(hand):
