@@ -108,7 +108,17 @@ def test_track_video_on_a_dib_avi_runs_to_the_end(dib_video, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 0, err
     assert len((out / "trajectory.csv").read_text().splitlines()) == 41
-    assert len(list((out / "masks" / "cam0").glob("frame_*.png"))) == 40
+    masks = sorted((out / "masks" / "cam0").glob("frame_*.png"))
+    assert len(masks) == 40
+    truth = moving_square(40, 48, 48)[..., 0] == 230  # the masks it tracked are the square's
+    ious = [((m := cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) > 0) & t).sum() / max((m | t).sum(), 1)
+            for p, t in zip(masks, truth)]
+    assert np.median(ious) > 0.8, ious
+    from kms2pin import load
+    from kms2pin.ecm import Trajectory
+
+    traj = Trajectory.from_csv(load(SPECS / "lowerbody.kms", root="free"), out / "trajectory.csv")
+    assert len(traj) == 40 and np.isfinite(traj.q).all()
 
 
 # ----------------------------------------------------------------------------- decoders that crash or hang
