@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from kms2pin.viewer import ViewerError, animate, write_animation_html
@@ -29,9 +30,15 @@ def test_animation_html_holds_every_frame(lowerbody, tmp_path):
     assert shin["fps"] == 24
     pos = {t["name"]: t for t in shin["tracks"]}[".position"]
     assert [k["time"] for k in pos["keys"]] == list(range(len(traj)))
-    for i in (0, len(traj) - 1):
-        expected = lowerbody.body_poses(traj[i])[lowerbody.index("leftShin")].translation
-        np.testing.assert_allclose(pos["keys"][i]["value"], expected)
+    for name, clip in clips.items():  # every body, every frame: its centre and its rotation (x, y, z, w)
+        body = name.rsplit("/", 1)[1]
+        tracks = {t["name"]: t for t in clip["tracks"]}
+        for i, x in enumerate(traj):
+            pose = lowerbody.body_pose(x, body)
+            np.testing.assert_allclose(tracks[".position"]["keys"][i]["value"], pose.translation, atol=1e-12)
+            quat = np.array(tracks[".quaternion"]["keys"][i]["value"])
+            np.testing.assert_allclose(pin.Quaternion(quat[3], *quat[:3]).toRotationMatrix(), pose.rotation,
+                                       atol=1e-9)
     pelvis = {t["name"]: t for t in clips[f"/meshcat/{ROOT}/model/bodies/pelvis"]["tracks"]}[".position"]
     assert np.ptp([k["value"] for k in pelvis["keys"]], axis=0).max() < 1e-12  # the pelvis does not move
 

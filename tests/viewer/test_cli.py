@@ -45,6 +45,16 @@ def test_html_is_standalone_with_native_ellipsoids(tmp_path, capsys):
     for c in body_tf:  # rigid transforms only: no second scaling
         R = np.array(c["matrix"]).reshape(4, 4).T[:3, :3]
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-9)
+    # the bodies where the robot puts them at the pose asked for: each body's placement
+    # relative to the first (whatever the scene's own placement), as Pinocchio's
+    q = robot.with_coordinates(robot.q_rest, {"leftThigh_hip": 40, "rightShin_knee": 60})
+    drawn = {c["path"].rsplit("/bodies/", 1)[1]: np.array(c["matrix"]).reshape(4, 4).T for c in body_tf}
+    first = robot.bodies[0]
+    for body in robot.bodies:
+        expected = robot.body_pose(q, first).inverse() * robot.body_pose(q, body)
+        np.testing.assert_allclose(np.linalg.inv(drawn[first]) @ drawn[body], expected.homogeneous, atol=1e-9)
+    rest = robot.body_pose(robot.q_rest, "rightThigh").inverse() * robot.body_pose(robot.q_rest, "rightShin")
+    assert not np.allclose(np.linalg.inv(drawn["rightThigh"]) @ drawn["rightShin"], rest.homogeneous, atol=1e-3)
 
 
 @pytest.mark.browser
