@@ -89,3 +89,19 @@ def test_with_the_real_static_update(puma):
     d = draw_static_update(puma, puma.q_rest, X, result, camera="side")
     assert len(d.springs["before"]) == len(d.springs["after"]) == len(puma.bodies)
     np.testing.assert_allclose(d.primaries["after"].q, result.q)
+    # each arrow runs from its body's centre (before: the start, after: the result) to the
+    # target's centre X[:, :3], both moved by the side's offset: its node's placement, and
+    # the shaft's and the head's lengths along the node's y axis
+    sent = d.vis.window.sent
+    placed = {c["path"]: np.array(c["matrix"]).reshape(4, 4).T for c in sent if c["type"] == "set_transform"}
+    height = {c["path"]: c["object"]["geometries"][0]["height"] for c in sent if c["type"] == "set_object"
+              and c["path"].endswith(("/shaft", "/head"))}
+    for side, q in (("before", puma.q_rest), ("after", result.q)):
+        for k, body in enumerate(puma.bodies):
+            start = puma.body_pose(q, body).translation + d.offsets[side]
+            end = X[k, :3] + d.offsets[side]
+            path = f"/meshcat/{ROOT}/static_update/{side}/springs/{body}"
+            M = placed[path]
+            np.testing.assert_allclose(M[:3, 3], start, atol=1e-12)
+            length = height[f"{path}/shaft"] + height[f"{path}/head"]
+            np.testing.assert_allclose(M[:3, :3] @ [0.0, length, 0.0] + start, end, atol=1e-9)
