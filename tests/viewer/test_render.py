@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from kms2pin.viewer import RobotView, draw_static_update, projected_box, read_png, view_basis
+from kms2pin.viewer import RobotView, draw_static_update, read_png
 from kms2pin.viewer.render import inner_mask, mask_box, red_mask, render_png
 from kms2pin.viewer.robot_view import new_visualizer
 from kms2pin.viewer.scene import plain_background
@@ -46,6 +46,9 @@ def pictures(tmp_path_factory):
         view = RobotView(robot, camera="front", aspect=W / H)
         jobs[name] = (view.static_html(), W, H)
         info[name] = robot
+        bare = RobotView(robot, camera="front", aspect=W / H, world_axes=False, joint_axes=False)  # the bodies alone
+        jobs[f"{name}/bare"] = (bare.static_html(), W, H)
+        info[f"{name}/bare"] = bare.camera_setup
     empty = new_visualizer(serve=False)
     plain_background(empty)
     jobs["empty"] = (empty.static_html(), 200, 200)
@@ -73,10 +76,21 @@ def test_model_is_drawn_with_the_projected_shape(pictures, name):
     r0, r1, c0, c1 = mask_box(mask)
     height, width = r1 - r0 + 1, c1 - c0 + 1
     assert height > width * 1.5, "a human model is taller than wide from the front"
-    right, up, _ = view_basis("front")
-    lo_r, hi_r, lo_u, hi_u = projected_box(robot, robot.q_rest, right, up)
-    expected = (hi_u - lo_u) / (hi_r - lo_r)
-    assert height / width == pytest.approx(expected, rel=0.2)
+    # the bodies alone, where a pinhole camera at the page's camera (three.js: vertical field
+    # of view) sees the inner ellipsoids' surface points: the drawn box within 3 pixels
+    cam = info[f"{name}/bare"]
+    f = (H / 2) / np.tan(np.radians(cam.fov_deg) / 2)
+    rng = np.random.default_rng(0)
+    px = []
+    for P, b in zip(robot.body_poses(robot.q_rest), robot.bodies):
+        u = rng.normal(size=(4000, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        w = (P.rotation @ (u * robot.inner(b)).T).T + P.translation - cam.position
+        x, y, z = w @ cam.right, w @ cam.up, w @ cam.forward
+        px.append(np.c_[H / 2 - f * y / z, W / 2 + f * x / z])
+    px = np.concatenate(px)
+    drawn = mask_box(inner_mask(images[f"{name}/bare"]))
+    np.testing.assert_allclose(drawn, [px[:, 0].min(), px[:, 0].max(), px[:, 1].min(), px[:, 1].max()], atol=3.0)
     # framed: fills most of the height, roughly centred
     assert height > 0.7 * H
     assert abs((c0 + c1) / 2 - W / 2) < 0.12 * W
