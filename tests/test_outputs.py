@@ -101,6 +101,46 @@ def test_a_run_that_fails_before_writing_leaves_no_folder(tmp_path, capsys):
     assert not (tmp_path / "a").exists()
 
 
+@pytest.mark.parametrize("command", ["track", "synth", "segment", "export"])
+def test_an_empty_output_path_is_refused_not_taken_for_the_current_folder(masks, tmp_path, monkeypatch, capsys,
+                                                                          command):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    argv = commands(masks, Path("PLACEHOLDER"))[command]
+    assert main([a if a != "PLACEHOLDER" else "" for a in argv]) == 2
+    assert "-o/--output: the output path is empty" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]  # nothing written, nothing removed
+
+
+def test_track_does_not_replace_files_that_no_track_run_wrote(masks, tmp_path, capsys):
+    """A folder holding a trajectory.csv and a smoothed.csv of the user's own (no meta.json of
+    a track run): refused, both kept; with an earlier run's meta.json they are that run's,
+    replaced with a note."""
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("trajectory.csv", "smoothed.csv"):
+        (out / name).write_text("my own\n")
+    argv = commands(masks, out)["track"] + ["--no-video"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert f"{out}: holds trajectory.csv, smoothed.csv but no meta.json of a kms2pin track run" in err, err
+    assert all((out / n).read_text() == "my own\n" for n in ("trajectory.csv", "smoothed.csv"))
+    assert not (out / "meta.json").exists()
+    (out / "meta.json").write_text(json.dumps({"options": {}, "complete": True, "cameras": 1}))
+    assert main(argv) == 0
+    assert f"note: {out}: removed 2 file(s) of an earlier run" in capsys.readouterr().err
+    assert not (out / "smoothed.csv").exists() and len((out / "trajectory.csv").read_text().splitlines()) == 41
+
+
+def test_segment_into_its_input_folder_is_refused(masks, tmp_path, capsys):
+    frames = tmp_path / "frames"
+    shutil.copytree(masks / "cam0", frames)
+    before = {p.name: p.read_bytes() for p in frames.iterdir()}
+    assert main(["segment", str(frames), "-o", str(frames / "."), "--no-progress"]) == 2
+    assert "is the input folder" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in frames.iterdir()} == before
+
+
 def test_the_lock_is_released_for_the_next_run_in_the_same_process(tmp_path):
     out = tmp_path / "out"
     with owned_output(out, "synth"):

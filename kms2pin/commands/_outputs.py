@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import OutputError
+from ..errors import OutputError, UsageError
 
 LOCK_NAME = ".kms2pin.lock"
 _TEMPORARY = re.compile(r"^\.[^/]+\.tmp(\.\w+)?$")  # what _temporary and track's overlay name
@@ -165,6 +165,8 @@ def owns_output(run: Callable) -> Callable:
 
     @functools.wraps(run)
     def wrapper(args):
+        if not str(args.output).strip():  # Path("") is the current folder: never what was meant
+            raise UsageError("-o/--output: the output path is empty; give a folder ('.' for this one)")
         with owned_output(args.output, getattr(args, "command", None) or run.__module__.rsplit(".", 1)[-1]):
             return run(args)
 

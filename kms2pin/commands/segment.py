@@ -31,7 +31,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import InputDataError
+from ..errors import InputDataError, UsageError
 from ..video.io import MASK_NAME, open_frames, remove_masks_from, write_mask
 from ..video.segmentation import (
     DEFAULT_METHOD,
@@ -104,8 +104,11 @@ def run(args: argparse.Namespace) -> int:
     seg = Segmenter(params)  # checks the parameters
     for note in lighting_notes(args):
         print(f"note: {note}", file=sys.stderr)
-    source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
     out = Path(args.output)
+    if Path(args.video).is_dir() and out.resolve() == Path(args.video).resolve():
+        raise UsageError(f"-o {args.output} is the input folder {args.video}: its frames would be replaced by "
+                         "their masks; choose another output folder")
+    source = open_frames(args.video)  # FileNotFoundError -> exit 2; no images / unreadable -> exit 1
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -54,7 +54,7 @@ from ..ecm.stretches import stretches, track_poses
 from ..ecm.tracker import Tracker, Trajectory, TrajectoryCsvWriter
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
 from ..ecm.workers import usable_cores
-from ..errors import BvhError, InputDataError, Kms2pinError, UsageError
+from ..errors import BvhError, InputDataError, Kms2pinError, OutputError, UsageError
 from ..robot import Robot
 from ..video.io import check_mask_sizes, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
@@ -140,16 +140,32 @@ def _remove_earlier_outputs(out: Path, cameras: int, frames: int | None = None) 
     """Delete what an earlier run left in ``out`` that this one writes or would not
     overwrite (so that the folder never mixes two runs' files); returns how many files.
     ``frames``: with --video, the masks this run writes to OUT/masks/camK."""
+    found = [name for name in _OUTPUTS if (out / name).is_file()]
+    masks = frames is not None and any((out / "masks").glob("cam*/frame_*.png"))
+    if (found or masks) and not _earlier_track(out):
+        what = ", ".join(found + ["masks/cam*/frame_*.png"] * masks)
+        raise OutputError(
+            f"{out}: holds {what} but no meta.json of a kms2pin track run, so they are not an earlier "
+            "run's outputs and track will not replace them; choose an empty or new output folder (or move them)")
     removed = 0
-    for name in _OUTPUTS:
-        if (out / name).is_file():
-            (out / name).unlink()
-            removed += 1
+    for name in found:
+        (out / name).unlink()
+        removed += 1
     if frames is not None:
         for d in sorted((out / "masks").glob("cam*")):
             k = d.name[3:]
             removed += remove_masks_from(d, frames if k.isdigit() and int(k) < cameras else 0)
     return removed
+
+
+def _earlier_track(out: Path) -> bool:
+    """Whether ``out`` holds the meta.json a ``kms2pin track`` run writes first (its options
+    and its ``complete`` flag): what else is in it is that run's."""
+    try:
+        meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and {"options", "complete", "cameras"} <= meta.keys()
 
 
 @dataclass
