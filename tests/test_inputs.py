@@ -226,6 +226,36 @@ def test_camera_make_refuses_a_width_over_8192_as_a_usage_error(tmp_path, capsys
     assert "--width: expected a whole number in [1, 8192], got '20000'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["synth", str(SPECS / "lowerbody.kms"), "--frames", "99999999999999999999", "-o", "o"],
+     "--frames: expected a whole number in [1, 1e+06], got '99999999999999999999'"),
+    (["segment", "frames", "--history", "3000000000", "-o", "o"],
+     "--history: expected a whole number in [1, 2.14748e+09], got '3000000000'"),
+    (["view", str(SPECS / "lowerbody.kms"), "--port", "-1"], "--port: expected a whole number in [0, 65535], got '-1'"),
+    (["view", str(SPECS / "lowerbody.kms"), "--port", "99999"], "--port: expected a whole number in [0, 65535]"),
+])
+def test_counts_past_what_the_tools_can_take_are_usage_errors(tmp_path, capsys, monkeypatch, argv, message):
+    """A frame count that would be allocated, OpenCV's int, a TCP port: refused by the parser
+    (exit 2) before anything runs, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_frames_of_one_pixel_are_refused_naming_the_image(tmp_path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"f{k}.png"), np.zeros((1, 1, 3), np.uint8))
+    code, err = run(["segment", frames, "-o", tmp_path / "o", "--no-progress"], capsys)
+    assert code == 1
+    assert one_line(err) == f"{frames / 'f0.png'}: frame 0 is 1x1 pixels; at least 2x2 are needed"
+    assert not (tmp_path / "o").exists()
+
+
 def test_an_image_over_8192_pixels_a_side_is_refused_from_its_header(tmp_path, capsys, monkeypatch):
     frames = tmp_path / "frames"
     frames.mkdir()

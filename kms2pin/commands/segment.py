@@ -41,7 +41,7 @@ from ..video.segmentation import (
     Segmenter,
     SegmentParams,
 )
-from ._common import count, lighting_notes, number, positive, positive_count
+from ._common import count, lighting_notes, number, positive
 from ._outputs import owns_output
 
 NAME = "segment"
@@ -78,7 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="foreground threshold: MOG2 varThreshold (squared Mahalanobis distance, default "
                         f"{DEFAULT_THRESHOLD['mog2']:g}) or KNN dist2Threshold (squared distance in grey levels, "
                         f"default {DEFAULT_THRESHOLD['knn']:g}); larger = fewer foreground pixels")
-    p.add_argument("--history", type=positive_count, default=500, metavar="N",
+    p.add_argument("--history", type=number(1, 2**31 - 1, whole=True), default=500, metavar="N",  # OpenCV's int
                    help="adaptation time scale in frames; learning rate 1/N after learning (default: 500)")
     p.add_argument("--min-blob-area", type=count, metavar="PX",
                    help="drop foreground blobs smaller than this (default: 0.1%% of the image)")

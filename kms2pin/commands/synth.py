@@ -28,11 +28,15 @@ from ..ecm.tracker import Trajectory
 from ..errors import InputDataError, Kms2pinError, UsageError
 from ..robot import Robot
 from ..video.io import MASK_NAME, remove_masks_from, write_png_atomically
-from ._common import add_spec_argument, count, existing_file, number, positive_count, read_model
+from ._common import add_spec_argument, count, existing_file, number, read_model
 from ._outputs import owns_output, replaced
 
 NAME = "synth"
 HELP = "render synthetic silhouette masks of a moving model (for track / evaluate)"
+
+#: the most frames synth renders (an hour at 30 frames/s is 108,000): a mistyped count is refused, not
+#: allocated
+MAX_SYNTH_FRAMES = 1_000_000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -40,8 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion", default="walk", metavar="NAME|FILE.csv",
                    help=f"{', '.join(MOTIONS)} (default: walk), or a trajectory CSV of the model "
                    "(as track writes it, or synth's truth.csv)")
-    p.add_argument("--frames", type=positive_count, metavar="N",
-                   help="number of frames (default: 60; with a CSV motion, all its frames; N takes the first N)")
+    p.add_argument("--frames", type=number(1, MAX_SYNTH_FRAMES, whole=True), metavar="N",
+                   help="number of frames (default: 60; with a CSV motion, all its frames; N takes the first N; "
+                        f"at most {MAX_SYNTH_FRAMES:,})")
     p.add_argument("--shape", choices=SHAPES, default="ellipsoid",
                    help="render the inner ellipsoids (default), or capsules in their place: along the longest "
                    "semi-axis a, end to end 2a, radius the mean of the other two")

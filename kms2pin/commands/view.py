@@ -20,7 +20,7 @@ import time
 
 from ..errors import UsageError
 from ..robot import Robot
-from ._common import add_spec_argument, read_model
+from ._common import add_spec_argument, number, read_model
 
 NAME = "view"
 HELP = "show a model in meshcat with joint sliders, or write --html / --png pictures"
@@ -51,7 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="'free': replace the joint to the inertial frame by a floating base")
     p.add_argument("--system", help="which rigidBodySystem, if the spec has several")
     p.add_argument("--no-serve", action="store_true", help="only write --html/--png, start no server")
-    p.add_argument("--port", type=int, default=0, help="port of the joint-control page (default: any free port)")
+    p.add_argument("--port", type=number(0, 65535, whole=True), default=0,
+                   help="port of the joint-control page (default: any free port)")
     p.add_argument("--host", default="127.0.0.1", metavar="ADDRESS",
                    help="address the meshcat viewer and the joint-control page listen on (default 127.0.0.1: "
                         "this machine only; another one, e.g. 0.0.0.0, lets other machines see and move the "

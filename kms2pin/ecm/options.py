@@ -295,8 +295,9 @@ class LimbSearchOptions(_Group):
         None, "when the fit falls more than limb_search_drop below the running fit, try every limb swung the "
               "other way or put back at rest and twin limbs exchanged (None: on)",
         tristate=True, cli=Cli("--no-limb-search"))
-    limb_search_drop: float = option(0.015, "the fall in fit (IoU) that starts the limb search (negative: every "
-                                            "frame)", range=Range(-np.inf), cli=Cli("--limb-search-drop", "D", lo=0.0))
+    limb_search_drop: float = option(0.015, "the fall in fit (IoU) that starts the limb search (in Python also "
+                                            "negative: every frame)", range=Range(-np.inf),
+                                     cli=Cli("--limb-search-drop", "D", lo=0.0))
     limb_hypothesis: bool | None = option(
         None, "on a smaller fall, track the best candidate beside the pose (None: with one camera and the "
               "limb search)", tristate=True, cli=Cli("--no-limb-hypothesis"))

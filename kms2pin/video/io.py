@@ -44,6 +44,9 @@ from ..errors import InputDataError
 from ..userfile import MAX_IMAGE_SIDE, read_user_file
 from . import _decoder
 
+#: the fewest pixels a side of a frame (OpenCV's background models fail on a single row or column)
+MIN_IMAGE_SIDE = 2
+
 IMAGE_EXTENSIONS = frozenset(
     {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pbm", ".pnm", ".jp2", ".exr", ".hdr"}
 )
@@ -197,6 +200,10 @@ class _Decoder:
             if max(rows, cols) > MAX_IMAGE_SIDE:
                 self.close()
                 raise InputDataError(_too_large(self.path, cols, rows, "video's frame").args[0])
+            if min(rows, cols) < MIN_IMAGE_SIDE:
+                self.close()
+                raise InputDataError(f"{self.path}: the video's frames are {cols}x{rows} pixels; at least "
+                                     f"{MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} are needed")
             img = np.empty((rows, cols, channels), dtype=np.uint8)
             if not self._read_into(memoryview(img).cast("B")):
                 raise self._died()
@@ -286,6 +293,9 @@ class FrameSource:
             img = read_image(f)
             if shape is None:
                 shape, first = img.shape[:2], f
+                if min(shape) < MIN_IMAGE_SIDE:
+                    raise InputDataError(f"{f}: frame {i} is {shape[1]}x{shape[0]} pixels; at least "
+                                         f"{MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} are needed")
             elif img.shape[:2] != shape:
                 raise InputDataError(
                     f"{f}: frame {i} is {img.shape[1]}x{img.shape[0]} pixels, but the first image "
