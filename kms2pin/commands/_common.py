@@ -19,7 +19,9 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, 
     """argparse type: a finite number (``whole``: an integer) in [lo, hi], brackets open
     as asked; the message says the range as ">= lo" when there is no upper bound."""
     word = "a whole number" if whole else "a number"
-    if hi == math.inf:
+    if lo == -math.inf and hi == math.inf:
+        word, bound = f"a finite {word[2:]}", ""
+    elif hi == math.inf:
         bound = f"{'>' if lo_open else '>='} {lo:g}"
     else:
         bound = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
@@ -32,7 +34,7 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, 
         above = lo < value if lo_open else lo <= value
         below = value < hi if hi_open or hi == math.inf else value <= hi  # also rejects inf and nan
         if not (above and below):
-            raise argparse.ArgumentTypeError(f"expected {word} {bound}, got '{text}'")
+            raise argparse.ArgumentTypeError(f"expected {word}{' ' * bool(bound)}{bound}, got '{text}'")
         return value
 
     return parse

@@ -21,24 +21,25 @@ import re
 import sys
 from pathlib import Path
 
-from ..errors import CameraError
+from ..errors import CameraError, UsageError
 from ..userfile import MAX_IMAGE_SIDE
 from ..video.calibration import DISTORTION_MODELS, calibrate_chessboard, make_camera, with_pose
 from ..video.io import list_images
 from ._common import existing_file, number, positive, write_outputs
 
 _side = number(1, MAX_IMAGE_SIDE, whole=True)
+_coordinate = number()  # a finite number (world units)
 
 NAME = "camera"
 HELP = "make a camera file from a field of view, or calibrate one from chessboard photos"
 
 
 def _add_pose(p: argparse.ArgumentParser, default_text: str) -> None:
-    p.add_argument("--position", nargs=3, type=float, metavar=("X", "Y", "Z"),
+    p.add_argument("--position", nargs=3, type=_coordinate, metavar=("X", "Y", "Z"),
                    help=f"camera centre in the world (default: {default_text})")
-    p.add_argument("--look-at", nargs=3, type=float, metavar=("X", "Y", "Z"),
+    p.add_argument("--look-at", nargs=3, type=_coordinate, metavar=("X", "Y", "Z"),
                    help="world point on the optical axis (default: position + (0, 0, 1), i.e. looking along +z)")
-    p.add_argument("--up", nargs=3, type=float, default=(0.0, 1.0, 0.0), metavar=("X", "Y", "Z"),
+    p.add_argument("--up", nargs=3, type=_coordinate, default=(0.0, 1.0, 0.0), metavar=("X", "Y", "Z"),
                    help="world direction shown upwards in the image (default: 0 1 0)")
     p.add_argument("--name", default="", help="camera name stored in the file")
     p.add_argument("-o", "--output", required=True, metavar="CAM.json", help="camera file to write")
@@ -78,7 +79,11 @@ def _write(camera, out: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.camera_command == "make":
-        cam = make_camera(args.width, args.height, args.fov, args.position, args.look_at, args.up, name=args.name)
+        try:
+            cam = make_camera(args.width, args.height, args.fov, args.position, args.look_at, args.up, name=args.name)
+        except CameraError as err:  # the flags' values make no camera: say so in their terms
+            raise UsageError(f"camera make --width {args.width} --height {args.height} --fov {args.fov}: "
+                             f"{err}") from None
         _write(cam, args.output)
         return 0
     files: list[str] = []

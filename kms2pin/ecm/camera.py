@@ -166,7 +166,14 @@ class Camera:
         K = self._K.copy()
         K[:2, 2] -= (f - 1) / 2.0
         K[:2] /= f
-        return Camera(K, pin.SE3(self._R, self._t), self._width // f, self._height // f, self._dist, self._name)
+        K.flags.writeable = False
+        # made from this checked camera, not checked again: its focal lengths may fall below a
+        # file's least (MIN_FOCAL), and an error then would name no file
+        out = object.__new__(Camera)
+        out.__dict__.update(self.__dict__, _K=K, _width=self._width // f, _height=self._height // f)
+        for cached in ("P", "ray_grid"):
+            out.__dict__.pop(cached, None)
+        return out
 
     # ------------------------------------------------------------- projection
     def to_camera(self, points_world: np.ndarray) -> np.ndarray:

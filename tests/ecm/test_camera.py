@@ -99,6 +99,22 @@ def test_a_binned_camera_projects_a_point_to_its_block_coordinates(with_dist):
     assert cam.binned(1) is cam
 
 
+def test_a_camera_at_the_least_focal_length_bins_without_an_error():
+    """A camera file may give fx = fy = MIN_FOCAL; its binned copy (the tracker's coarse
+    views) has half that, and is made from the checked camera, not refused without the
+    file's name; it still projects to the blocks' coordinates, its caches its own."""
+    from kms2pin.ecm.camera import MIN_FOCAL
+
+    cam = Camera([[MIN_FOCAL, 0, 40.0], [0, MIN_FOCAL, 30.0], [0, 0, 1]], pin.SE3.Identity(), 80, 60, name="tiny")
+    cam.P  # noqa: B018  (cached on the camera: the binned one must not take it)
+    b = cam.binned(4)
+    assert b.K[0, 0] == MIN_FOCAL / 4 and b.shape == (15, 20) and b.name == "tiny"
+    pts = np.array([[0.5, -0.2, 2.0], [3.0, 1.0, 1e-3]])
+    np.testing.assert_allclose(b.project(pts), (cam.project(pts) - 1.5) / 4.0, atol=1e-9)
+    np.testing.assert_allclose(b.P, b.K @ np.eye(3, 4))
+    assert not b.K.flags.writeable
+
+
 def test_binning_an_image_smaller_than_the_factor_is_a_camera_error():
     cam = Camera(np.diag([10.0, 10.0, 1.0]), pin.SE3.Identity(), 3, 1)
     with pytest.raises(CameraError, match="cannot bin a 3x1 image by 2"):

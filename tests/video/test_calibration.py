@@ -123,9 +123,19 @@ def test_camera_make_errors(tmp_path, capsys):
         main(["camera", "make", "--width", "320", "--height", "240", "--fov", "190", "-o", out])
     assert exc.value.code == 2
     assert "argument --fov: expected a number in (0, 180)" in capsys.readouterr().err
+    # flags that make no camera are usage errors too (exit 2), saying the flags
     assert main(["camera", "make", "--width", "320", "--height", "240", "--fov", "40",
-                 "--position", "0", "0", "0", "--look-at", "0", "3", "0", "-o", out]) == 1
+                 "--position", "0", "0", "0", "--look-at", "0", "3", "0", "-o", out]) == 2
     assert "parallel" in capsys.readouterr().err
+    assert main(["camera", "make", "--width", "48", "--height", "48", "--fov", "179.99999", "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "camera make --width 48 --height 48 --fov 179.99999: " in err and "focal lengths" in err
+    with pytest.raises(SystemExit) as exc:
+        main(["camera", "make", "--width", "48", "--height", "48", "--fov", "40", "--position", "nan", "0", "0",
+              "-o", out])
+    assert exc.value.code == 2
+    assert "argument --position: expected a finite number, got 'nan'" in capsys.readouterr().err
+    assert not (tmp_path / "c.json").exists()
     with pytest.raises(CameraError):
         make_camera(0, 240, 40)
 
