@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BvhError, Diagnostic, did_you_mean
+from ..lang.symbols import MAX_LENGTH
 from ..userfile import MAX_DATA_BYTES, read_user_file
 
 #: The six channel names of the format.
@@ -208,6 +209,9 @@ class _Hierarchy:
             raise self.error(token, f"expected {what}, found '{token[2]}'") from None
         if not np.isfinite(value):
             raise self.error(token, f"expected {what}, found '{token[2]}' (not finite)")
+        if abs(value) > MAX_LENGTH:
+            raise self.error(token, f"expected {what}, found '{token[2]}', beyond +-{MAX_LENGTH:g}, the largest "
+                                    "value kms2pin takes (file units)")
         return value
 
     def channels(self, keyword) -> tuple[tuple[str, ...], int]:
@@ -256,6 +260,8 @@ def _motion(path: str, lines: list[str], at: int, joints: tuple[BvhJoint, ...]) 
     if not m or not m[1].isdigit():
         raise _error(path, lines, nf, 1, "expected 'Frames: N' (a whole number of frames)")
     frames = int(m[1])
+    if frames == 0:
+        raise _error(path, lines, nf, 1, "'Frames: 0': the file holds no motion (at least one frame is needed)")
     m = _FRAME_TIME.match(time_line)
     try:
         frame_time = float(m[1]) if m else None
@@ -282,22 +288,25 @@ def _motion(path: str, lines: list[str], at: int, joints: tuple[BvhJoint, ...]) 
             motion[k] = np.array(values, dtype=float)
         except ValueError:
             motion[k] = np.nan
-        if not np.isfinite(motion[k]).all():
+        if not np.isfinite(motion[k]).all() or (np.abs(motion[k]) > MAX_LENGTH).any():
             _bad_value(path, lines, line, k, joints, motion[k])
     return frame_time, motion
 
 
 def _bad_value(path: str, lines: list[str], line: int, frame: int, joints, row: np.ndarray):
-    """Raise the error for the first value of ``row`` (frame ``frame`` at ``line``) that is not a finite number."""
+    """Raise the error for the first value of ``row`` (frame ``frame`` at ``line``) that is not a finite number,
+    or is beyond +-MAX_LENGTH."""
     tokens = list(_TOKEN.finditer(lines[line - 1]))
     for c, token in enumerate(tokens):
         try:
-            ok = np.isfinite(float(token.group()))
+            value = float(token.group())
         except ValueError:
-            ok = False
-        if not ok:
+            value = np.nan
+        if not np.isfinite(value) or abs(value) > MAX_LENGTH:
             joint = next(j for j in joints if j.first <= c < j.first + len(j.channels))
             channel = f"{joint.name} {joint.channels[c - joint.first]}"
-            raise _error(path, lines, line, token.start() + 1,
-                         f"frame {frame}, channel {c + 1} ({channel}): '{token.group()}' is not a finite number")
+            what = "is not a finite number" if not np.isfinite(value) else \
+                f"is beyond +-{MAX_LENGTH:g}, the largest value kms2pin takes"
+            raise _error(path, lines, line, token.start() + 1, f"frame {frame}, channel {c + 1} ({channel}): "
+                                                               f"'{token.group()}' {what}")
     raise AssertionError("a row without a bad value")  # pragma: no cover
