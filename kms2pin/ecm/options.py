@@ -25,6 +25,10 @@ import numpy as np
 
 from ..errors import OptionError, did_you_mean
 
+#: the largest weight of a prior (times the joints' mean stiffness): far stiffer than any spring, and
+#: small enough that the springs' products stay finite
+MAX_WEIGHT = 1e6
+
 
 @dataclass(frozen=True)
 class Range:
@@ -200,12 +204,12 @@ class PriorOptions(_Group):
     """Springs that hold what the images do not fix (each times a stiffness the data sets)."""
 
     depth_prior: float = option(0.0, "hold a free root's distance along each camera's ray at the prediction",
-                                range=Range(0.0), cli=Cli("--depth-prior", "K"))
+                                range=Range(0.0, MAX_WEIGHT), cli=Cli("--depth-prior", "K"))
     upright: float = option(0.0, "hold the free root's tilt from 'up' at the first frame's (0.1 for people "
-                                 "walking, one camera)", range=Range(0.0), cli=Cli("--upright", "K"))
+                                 "walking, one camera)", range=Range(0.0, MAX_WEIGHT), cli=Cli("--upright", "K"))
     up: tuple = option((0.0, 1.0, 0.0), "the world's vertical for 'upright' (normalized)", cli=Cli("--up"))
     rest_prior: float = option(0.0, "pull every joint, not the root, towards the pose 'rest_pose' names (0.01 "
-                                    "for people walking, one camera)", range=Range(0.0), cli=Cli("--rest-prior", "K"))
+                                    "for people walking, one camera)", range=Range(0.0, MAX_WEIGHT), cli=Cli("--rest-prior", "K"))
     rest_pose: str = option("spec", "the pose 'rest_prior' pulls towards: the spec's rest pose ('spec') or the "
                                     "track's starting pose q0 ('start': for a model whose rest is far from how "
                                     "the subject stands, such as a BVH import's T-pose)", choices=("spec", "start"),
@@ -213,14 +217,14 @@ class PriorOptions(_Group):
     twist_prior: float = option(0.0, "hold a spherical joint's twist about its child's long axis near rest "
                                      "where that body is nearly round (an upper arm): no silhouette shows it "
                                      "(0: off)",
-                                range=Range(0.0), cli=Cli("--twist-prior", "K"))
+                                range=Range(0.0, MAX_WEIGHT), cli=Cli("--twist-prior", "K"))
     twist_free: float = option(0.0, "the twist (degrees either way of rest) that twist_prior leaves free: a soft "
                                     "limit past it instead of a pull towards rest (0: the pull)",
                                range=Range(0.0, 180.0), cli=Cli("--twist-free", "DEG"))
     spine_twist: float = option(0.0, "hold the spine's twist (the spherical joints from a free root to the body "
                                      "twin limbs branch from) about its bones near rest: a trunk turned half a "
                                      "turn with its arms exchanged casts the same silhouettes (0.05 for people; "
-                                     "0: off)", range=Range(0.0), cli=Cli("--spine-twist", "K"))
+                                     "0: off)", range=Range(0.0, MAX_WEIGHT), cli=Cli("--spine-twist", "K"))
     spine_free: float = option(0.0, "the twist (degrees either way of rest, each spine joint) that spine_twist "
                                     "leaves free (0: a pull towards rest)",
                                range=Range(0.0, 180.0), cli=Cli("--spine-free", "DEG"))
@@ -228,7 +232,7 @@ class PriorOptions(_Group):
                                  "from: a spring that pushes it out once its centre comes within half its offset "
                                  "at rest of that body's midline (the legs, the limbs that hold the feet at the "
                                  "first pose, are left out; 0: off)",
-                            range=Range(0.0), cli=Cli("--midline", "K"))
+                            range=Range(0.0, MAX_WEIGHT), cli=Cli("--midline", "K"))
     midline_legs: float | None = option(
         None, "with midline, keep each thigh out past this share of its offset at rest from the pelvis's "
               "midline too, so that a kick does not pull the other thigh onto its image (a share in [0, 1]; "
@@ -236,7 +240,7 @@ class PriorOptions(_Group):
     ground: float = option(0.0, "ground contact: pull the feet's lowest point onto the floor and push any foot "
                                 "below it up, which gives one camera the depth (the floor: ground_height along "
                                 "'up'; the feet: the bodies lowest at q0; 0: off)",
-                           range=Range(0.0), cli=Cli("--ground", "K"))
+                           range=Range(0.0, MAX_WEIGHT), cli=Cli("--ground", "K"))
     ground_height: float | None = option(
         None, "the floor's height along 'up' for 'ground' (spec units; None: the feet's lowest point at the "
               "pose the sizes are measured at, q0)", range=Range(-np.inf, none_ok=True),

@@ -47,7 +47,9 @@ from ._tracking import (
         (dict(limb_search_drop="0.03"), "limb_search_drop must be a number, not '0.03'"),
         (dict(poor_fit=1.5), "poor_fit must be >= 0.0 and <= 1.0, not 1.5"),
         (dict(hypothesis_smoothing=0.0), "hypothesis_smoothing must be > 0.0 and <= 1.0, not 0.0"),
-        (dict(upright=-1.0), "upright must be >= 0.0, not -1.0"),
+        (dict(upright=-1.0), "upright must be >= 0.0 and <= 1000000.0, not -1.0"),
+        # a weight that would overflow the springs' products (NumPy warnings, a NaN pose) is refused
+        (dict(ground=1e308), "ground must be >= 0.0 and <= 1000000.0, not 1e+308"),
         (dict(mirror_hypothesis=True, tol_px=0.0), "tol_px must be > 0.0 or None, not 0.0"),
         (dict(static="diagonal", upright=0.1, midline=1.0),
          "static='diagonal' (the thesis's diagonal springs) has no terms for the priors, but upright=0.1, "
