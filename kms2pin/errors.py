@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import unicodedata
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -23,11 +24,25 @@ SHOWN_NAME = 60  # characters of a quoted name shown in a message
 _QUOTED = re.compile(r"'([^'\s]{" + str(SHOWN_NAME + 1) + r",})'")
 
 
+def _shown(char: str) -> str:
+    """A control or format character (an escape sequence's ESC, a bell, a text-direction
+    override) as one harmless character, so that a source line echoed to a terminal cannot
+    drive it and the caret stays under its column: ASCII controls as their Unicode control
+    pictures, the others as U+FFFD."""
+    code = ord(char)
+    if code < 0x20:
+        return chr(0x2400 + code)
+    if code == 0x7F:
+        return "\u2421"
+    return "\ufffd" if unicodedata.category(char) in ("Cc", "Cf") else char
+
+
 def excerpt(line: str, column: int) -> tuple[str, int]:
-    """``line`` (tabs expanded to 4) cut to about :data:`SHOWN_LINE` characters around
-    the 1-based ``column``, with ``...`` where it was cut, and the caret's 0-based offset in it."""
+    """``line`` (tabs expanded to 4; control and format characters shown harmlessly) cut to about
+    :data:`SHOWN_LINE` characters around the 1-based ``column``, with ``...`` where it was cut, and
+    the caret's 0-based offset in it."""
     at = len(line[: max(column, 1) - 1].expandtabs(4))
-    text = line.expandtabs(4)
+    text = "".join(map(_shown, line.expandtabs(4)))
     if len(text) <= SHOWN_LINE:
         return text, at
     start = min(max(at - SHOWN_LINE // 2, 0), len(text) - SHOWN_LINE)

@@ -792,3 +792,21 @@ def test_a_body_given_by_other_than_its_name_is_a_clear_type_error():
     with pytest.raises(RobotError, match="has no body 'torsoo' \\(did you mean 'torso'\\?\\)"):
         robot.inner("torsoo")
     assert did_you_mean(3, ["torso"]) == ""
+
+
+def test_a_source_line_with_control_characters_is_echoed_harmlessly(tmp_path, capsys):
+    """ESC (an escape sequence), BEL, DEL and a text-direction override in a spec line do not
+    reach the terminal as themselves: the echoed line shows each as one visible character,
+    and the caret stays under the column the message names."""
+    import unicodedata
+
+    spec = tmp_path / "esc.kms"
+    spec.write_bytes("rigidBodySystem x {\n  body a \x1b[31m\x07\x7f\u202e = 1;\n}\n".encode())
+    assert main(["export", str(spec), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    head, shown, caret = err.splitlines()[:3]
+    assert head == f"{spec}:2:10: error: syntax error: unexpected character '\\x1b'"
+    assert not [c for c in err if unicodedata.category(c) in ("Cc", "Cf") and c != "\n"], repr(err)
+    assert shown == "      body a \u241b[31m\u2407\u2421\ufffd = 1;"
+    assert caret.index("^") == shown.index("\u241b")
+    assert not (tmp_path / "out").exists()
