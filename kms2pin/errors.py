@@ -80,7 +80,8 @@ class Diagnostic:
     severity: str = "error"
 
     def format(self) -> str:
-        head = f"{self.path}:{self.line}:{self.column}: {self.severity}: {shorten_quoted(self.message)}"
+        head = "".join(map(_shown, f"{self.path}:{self.line}:{self.column}: {self.severity}: "
+                                   f"{shorten_quoted(self.message)}"))
         if not self.source_line:
             return head
         text, at = excerpt(self.source_line.rstrip("\n"), self.column)
