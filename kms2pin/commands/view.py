@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import re
 import signal
+import socket
 import sys
 import time
 
@@ -59,6 +60,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "model, and a warning says so)")
 
 
+def _check_host(host: str) -> None:
+    """UsageError unless this machine can listen on ``host`` (an address of one of its
+    interfaces, or a name for one), before any server is started and waited for."""
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as err:
+        raise UsageError(f"--host {host!r}: not an address or a known host name ({err})") from None
+    for family, kind, proto, _, address in infos:
+        try:
+            with socket.socket(family, kind, proto) as s:
+                s.bind(address)
+                return
+        except OSError as err:
+            why = err.strerror or str(err)
+    raise UsageError(f"--host {host!r}: not an address of this machine ({why}); 127.0.0.1 is this machine only, "
+                     "0.0.0.0 every interface")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..viewer import JointControl, PoseError, RobotView, parse_pose
     from ..viewer._meshcat_server import is_loopback
@@ -73,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--pose: {err}") from None
     width, height = args.size
     aspect = width / height if args.png else 16 / 10
+    if not args.no_serve:
+        _check_host(args.host)
     if not args.no_serve and not is_loopback(args.host):
         print(f"warning: --host {args.host}: the viewer and the joint-control page are open to other machines "
               "on the network (anyone who reaches them can see and move the model)", file=sys.stderr)

@@ -121,3 +121,12 @@ def test_serve_prints_urls_and_stops_cleanly():
             proc.wait()
         proc.stdout.close()
         proc.stderr.close()
+
+
+def test_a_host_this_machine_cannot_listen_on_is_a_usage_error_at_once(capsys):
+    """--host with an address of no interface here (TEST-NET-3, RFC 5737): refused before a
+    server starts (it once waited 30 s for a server that could not start)."""
+    assert main(["view", str(SPECS / "lowerbody.kms"), "--host", "203.0.113.7"]) == 2
+    err = capsys.readouterr().err
+    assert "--host '203.0.113.7': not an address of this machine" in err
+    assert "warning" not in err
