@@ -242,6 +242,11 @@ class Trajectory:
                 f"{path}: missing columns {', '.join(missing)} for '{robot.system.name}' "
                 f"(root={robot.root!r}); the file has {', '.join(header)}"
             )
+        twice = next((c for c in cols if header.count(c) > 1), None)
+        if twice is not None:
+            at = [k + 1 for k, h in enumerate(header) if h == twice]
+            raise InputDataError(f"{path}:1: column '{twice}' appears {len(at)} times (columns "
+                                 f"{', '.join(map(str, at))}): which one holds the joint is not clear")
         idx = [header.index(c) for c in cols]
         body = rows[1:]
         q = np.empty((len(body), len(cols)))  # CSV coordinates, converted to q below

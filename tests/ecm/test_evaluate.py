@@ -167,6 +167,22 @@ def test_a_csv_cell_that_is_not_a_finite_number_is_reported_with_its_line_and_co
     assert str(err.value) == f"{path}:3: column 'tip1_joint': '{value}' is not a finite number"
 
 
+def test_a_csv_column_named_twice_is_refused_naming_both(hand, tmp_path):
+    """Two columns called tip1_joint: which holds the joint is not clear, so neither is taken."""
+    robot, truth = hand
+    path = tmp_path / "t.csv"
+    Trajectory(robot, truth[:3]).to_csv(path)
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    k = header.index("tip1_joint")
+    lines = [f"{line},{line.split(',')[k]}" for line in lines]  # the column again, at the end
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputDataError) as err:
+        Trajectory.from_csv(robot, path)
+    assert str(err.value) == (f"{path}:1: column 'tip1_joint' appears 2 times (columns {k + 1}, {len(header) + 1}): "
+                              "which one holds the joint is not clear")
+
+
 def test_a_short_csv_row_is_reported_with_its_line(hand, tmp_path):
     robot, truth = hand
     path = tmp_path / "t.csv"
