@@ -68,12 +68,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _board(text: str) -> tuple[int, int]:
     m = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", text)
     if not m:
-        raise CameraError(f"--board: expected COLSxROWS inner corners such as 9x6, got '{text}'")
+        raise UsageError(f"--board: expected COLSxROWS inner corners such as 9x6, got '{text}'")
     return int(m.group(1)), int(m.group(2))
 
 
 def _write(camera, out: str) -> None:
     path = Path(out)
+    if path.is_dir():
+        raise UsageError(f"-o {out}: a folder; give the camera file's name (such as {path / 'camera.json'})")
     write_outputs({path: json.dumps(camera.to_dict(), indent=2) + "\n"}, path.parent)
 
 
