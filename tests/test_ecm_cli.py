@@ -765,3 +765,16 @@ def test_jobs_track_the_tracks_beside_in_several_processes_to_the_same_outputs(t
         main(["track", LOWER, "--masks", str(masks), "--jobs", "0", "-o", str(tmp_path / "x")])
     assert err.value.code == 2
     assert "--jobs: expected a whole number >= 1, got '0'" in capsys.readouterr().err
+
+
+def test_mask_folders_beyond_the_cameras_are_named_in_a_note(tmp_path, cams2, capsys):
+    """Masks of two cameras tracked with one camera's file: cam1/ is not tracked, and the
+    note says so instead of leaving it out silently."""
+    masks = _synth(tmp_path, cams2, frames=2)
+    one = tmp_path / "one.json"
+    cams = json.loads((masks / "cameras.json").read_text())
+    one.write_text(json.dumps(cams[0]))
+    capsys.readouterr()
+    assert main(["track", LOWER, "--masks", str(masks), "--camera", str(one), "--no-progress", "--no-video",
+                 "-o", str(tmp_path / "out")]) == 0
+    assert f"note: {masks}: cam1 not tracked: the cameras give 1 camera(s)" in capsys.readouterr().err

@@ -221,6 +221,11 @@ def _mask_frames(args) -> _Frames:
     else:
         raise InputDataError(f"{masks_dir}: no cameras.json; give the cameras with --camera CAM.json")
     numbers, per_cam = find_mask_frames(masks_dir, len(cameras))
+    unused = sorted((d.name for d in masks_dir.glob("cam*") if d.is_dir() and d.name[3:].isdigit()
+                     and int(d.name[3:]) >= len(cameras)), key=lambda n: int(n[3:]))
+    if unused:
+        print(f"note: {masks_dir}: {', '.join(unused)} not tracked: the cameras give {len(cameras)} camera(s) "
+              "(one per camK folder, in order)", file=sys.stderr)
     shapes, cam_names = [c.shape for c in cameras], [c.name or "" for c in cameras]
     check_mask_sizes(per_cam, numbers, shapes, cam_names)
     names = [", ".join(str(pc[f]) for pc in per_cam) for f in numbers]
