@@ -78,7 +78,8 @@ def test_calibrate_needs_three_views(tmp_path, capsys):
     assert not (tmp_path / "c.json").exists()
     assert main(["camera", "make", "--width", "48", "--height", "48", "--fov", "40", "-o", str(tmp_path)]) == 2
     assert f"-o {tmp_path}: a folder; give the camera file's name" in capsys.readouterr().err
-    assert main(["camera", "calibrate", str(tmp_path), "--board", "abc", "-o", str(tmp_path / "c.json")]) == 2
+    assert main(["camera", "calibrate", str(tmp_path), "--board", "abc", "--square", "0.03",
+                 "-o", str(tmp_path / "c.json")]) == 2
     assert "--board: expected COLSxROWS inner corners such as 9x6, got 'abc'" in capsys.readouterr().err
     with pytest.raises(CameraError, match="cols != rows"):
         calibrate_chessboard(images, (6, 6), 0.03)
