@@ -341,13 +341,38 @@ def test_upright_with_a_fixed_root_says_it_does_nothing(tmp_path, cams2, capsys)
     assert json.loads((out / "meta.json").read_text())["root"] == "spec"
 
 
-def test_a_damaged_mask_stops_the_track_with_its_outputs_complete_up_to_there(tmp_path, capsys):
-    """A mask that is a PNG by its header but cut short (its size is right) stops the run at
-    its frame: trajectory.csv and poses.npz hold the frames before it, meta.json says the
-    track is not complete, and evaluate warns of both."""
+def test_a_damaged_mask_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A mask that is a PNG by its header but cut short (its size is right): every mask is
+    decoded before the track starts, so the error names it and its frame, no output folder
+    is made, and OpenCV's own warning does not reach stderr."""
     masks = _synth(tmp_path, frames=6)
     bad = masks / "cam0" / "frame_00004.png"
     bad.write_bytes(bad.read_bytes()[:40])
+    out = tmp_path / "o"
+    capsys.readouterr()
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == f"{bad}: frame 4: not a readable image (empty, truncated or unknown format)"
+    assert "WARN" not in err
+    assert not out.exists()
+
+
+def test_a_mask_that_fails_mid_track_stops_it_with_its_outputs_complete_up_to_there(tmp_path, capsys, monkeypatch):
+    """A mask that cannot be read once the track runs (replaced on a shared disk, say) stops
+    the run at its frame: trajectory.csv and poses.npz hold the frames before it, meta.json
+    says the track is not complete, and evaluate warns of both."""
+    from kms2pin.commands import track as track_command
+    from kms2pin.errors import InputDataError
+
+    masks = _synth(tmp_path, frames=6)
+    read = track_command.read_mask
+
+    def flaky(path, frame, *a, **k):
+        if frame == 4:
+            raise InputDataError(f"{path}: frame {frame}: not a readable image (empty, truncated or unknown format)")
+        return read(path, frame, *a, **k)
+
+    monkeypatch.setattr(track_command, "read_mask", flaky)
     out = tmp_path / "o"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 1
     err = capsys.readouterr().err

@@ -95,6 +95,17 @@ def _header_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
+def _quietly_decoded(data: bytes, flags: int) -> np.ndarray | None:
+    """``cv2.imdecode`` without OpenCV's own warnings on stderr (a truncated PNG's "input
+    buffer is incomplete"): the caller reports a bad image itself, with its file and frame."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
+    try:
+        return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
 def decode_image(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED, where: str | None = None) -> np.ndarray:
     """``cv2.imdecode`` of the file ``path`` (a regular file; at most
     :data:`~kms2pin.userfile.MAX_IMAGE_SIDE` pixels a side, checked from the header
@@ -112,7 +123,7 @@ def decode_image(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED, whe
     size = _header_size(data)
     if size is not None and max(size) > MAX_IMAGE_SIDE:
         raise _too_large(where, *size)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
+    img = _quietly_decoded(data, flags) if data else None
     if img is None:
         raise InputDataError(f"{where}: not a readable image (empty, truncated or unknown format)")
     if max(img.shape[:2]) > MAX_IMAGE_SIDE:
