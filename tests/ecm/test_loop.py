@@ -11,7 +11,7 @@ from kms2pin.ecm.prediction import body_outline_pixels, image_motion
 from kms2pin.ecm.synth import render
 from kms2pin.ecm.tracker import Tracker
 
-from ._tracking import _cams, _perturbed, _robot
+from ._tracking import _cams, _perturbed, _robot, centre_error
 
 
 def _every_iteration_tested(ecm, q, views, limit):
@@ -55,3 +55,9 @@ def test_a_frame_stops_where_testing_every_iteration_would(options, limit):
     q_ref, its_ref, done_ref = _every_iteration_tested(tr.ecm, q0, views, limit)
     np.testing.assert_array_equal(q, q_ref)
     assert (its, done) == (its_ref, done_ref)
+    # and from outside the loop: the iterations within their bounds, and the pose nearer
+    # the truth it was rendered at than its start (every case here takes it closer)
+    it_opt = tr.options.iteration
+    assert 1 <= its <= limit and (not done or its >= min(it_opt.min_iterations, limit))
+    assert done or its == limit
+    assert centre_error(robot, q, qt) < centre_error(robot, q0, qt)
