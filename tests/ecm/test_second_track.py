@@ -125,7 +125,7 @@ def test_a_second_track_is_written_as_option_changes_and_refused_with_a_reason()
     robot = _robot("lowerbody")
     for text, message in (("midlin=1", "second_track: unknown option 'midlin' (did you mean 'midline'?)"),
                           ("midline", "second_track: 'midline' is not NAME=VALUE"),
-                          ("midline=-1", "second_track: midline must be >= 0.0, not -1"),
+                          ("midline=-1", "second_track: midline must be >= 0.0 and <= 1000000.0, not -1"),
                           ("second_track=a", "second_track: the second track has no second track of its own"),
                           ("upright=high", "second_track: upright must be a number, not 'high'"),
                           (3, "second_track must be text such as 'midline=1', not 3"),
@@ -215,7 +215,7 @@ def test_tracks_beside_are_separated_by_semicolons_and_none_is_empty():
     for text, message in (("midline=1;", "second_track: a track between ';' changes nothing in 'midline=1;'"),
                           ("midline=1;;reach_rest=2", "second_track: a track between ';' changes nothing"),
                           ("midline=1; midlin=2", "second_track: unknown option 'midlin'"),
-                          ("midline=1; midline=-1", "second_track: midline must be >= 0.0, not -1")):
+                          ("midline=1; midline=-1", "second_track: midline must be >= 0.0 and <= 1000000.0, not -1")):
         with pytest.raises(OptionError, match=f"^{message}"):
             Tracker(robot, Camera.default(), second_track=text)
 
