@@ -184,15 +184,18 @@ def test_track_missing_frame_and_unreadable(tmp_path, cams2, capsys):
 
 def test_track_non_binary_and_empty(tmp_path, cams2, capsys):
     masks = _synth(tmp_path, cams2, frames=3)
-    p = masks / "cam0" / "frame_00001.png"
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    cv2.imwrite(str(p), (img // 255 * 200).astype(np.uint8) + 10)
+    for k in (0, 1):
+        p = masks / "cam0" / f"frame_{k:05d}.png"
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(p), (img // 255 * 200).astype(np.uint8) + 10)
     for c in (0, 1):
         cv2.imwrite(str(masks / f"cam{c}" / "frame_00002.png"), np.zeros((240, 320), np.uint8))
     out = tmp_path / "o"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "frame_00001.png: frame 1: not a binary mask; thresholded at 127" in err
+    # frame 0 is read twice (the first frame that shows the subject, then tracked): one note
+    assert err.count("frame_00000.png: frame 0: not a binary mask; thresholded at 127") == 1
     assert "frame 2: empty mask" in err
     last = (out / "trajectory.csv").read_text().splitlines()[-1]
     assert last.endswith("empty mask")

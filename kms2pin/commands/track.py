@@ -233,9 +233,11 @@ def _mask_frames(args) -> _Frames:
             decode_image(pc[f], where=f"{pc[f]}: frame {f}")
     names = [", ".join(str(pc[f]) for pc in per_cam) for f in numbers]
 
+    noted: set = set()  # the masks whose thresholding was noted: the first frames are read twice
+
     def load(k: int) -> list[np.ndarray]:
         f = numbers[k]
-        return [read_mask(pc[f], f, s, n) for pc, s, n in zip(per_cam, shapes, cam_names)]
+        return [read_mask(pc[f], f, s, n, noted) for pc, s, n in zip(per_cam, shapes, cam_names)]
 
     return _Frames(cameras, numbers, load, names, masks_dir)
 

@@ -478,9 +478,11 @@ def check_mask_sizes(per_cam: list[dict[int, Path]], numbers: list[int], shapes:
                 read_mask(path, f, shape, name)
 
 
-def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "") -> np.ndarray:
+def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "",
+              noted: set | None = None) -> np.ndarray:
     """Frame ``frame``'s mask (bool, (H, W) = ``shape``) from a PNG: non-zero is
-    foreground; a grey image is thresholded at 127 (with a note on stderr)."""
+    foreground; a grey image is thresholded at 127 (with a note on stderr, once per
+    path in ``noted`` if given: a run that reads a mask again says it once)."""
     img = decode_image(path, where=f"{path}: frame {frame}")  # refuses over 8192 pixels a side before decoding
     if img.ndim == 3:
         img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
@@ -489,6 +491,9 @@ def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "") ->
     scale = 255 if img.dtype == np.uint8 else np.iinfo(img.dtype).max if img.dtype.kind in "ui" else 1
     vals = np.unique(img)
     if not np.all(np.isin(vals, (0, scale))) and not np.all(np.isin(vals, (0, 1))):
-        print(f"note: {path}: frame {frame}: not a binary mask; thresholded at 127", file=sys.stderr)
+        if noted is None or path not in noted:
+            print(f"note: {path}: frame {frame}: not a binary mask; thresholded at 127", file=sys.stderr)
+        if noted is not None:
+            noted.add(path)
         return img > 127 * scale / 255
     return img > 0
