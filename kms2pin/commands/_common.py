@@ -22,9 +22,9 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, 
     if lo == -math.inf and hi == math.inf:
         word, bound = f"a finite {word[2:]}", ""
     elif hi == math.inf:
-        bound = f"{'>' if lo_open else '>='} {lo:g}"
+        bound = f" {'>' if lo_open else '>='} {lo:g}"
     else:
-        bound = f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        bound = f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
 
     def parse(text: str) -> float:
         try:
@@ -34,7 +34,7 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, whole: bool = False, 
         above = lo < value if lo_open else lo <= value
         below = value < hi if hi_open or hi == math.inf else value <= hi  # also rejects inf and nan
         if not (above and below):
-            raise argparse.ArgumentTypeError(f"expected {word}{' ' * bool(bound)}{bound}, got '{text}'")
+            raise argparse.ArgumentTypeError(f"expected {word}{bound}, got '{text}'")
         return value
 
     return parse

@@ -56,7 +56,7 @@ from ..ecm.trajectory import POOR_FIT, poor_fit_flag
 from ..ecm.workers import usable_cores
 from ..errors import BvhError, InputDataError, Kms2pinError, OutputError, UsageError
 from ..robot import Robot
-from ..video.io import check_mask_sizes, decode_image, find_mask_frames, read_mask, remove_masks_from, write_mask
+from ..video.io import check_masks, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
 from ._common import Once, add_spec_argument, existing_file, lighting_notes, positive, positive_count, read_model
 from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
@@ -227,10 +227,7 @@ def _mask_frames(args) -> _Frames:
         print(f"note: {masks_dir}: {', '.join(unused)} not tracked: the cameras give {len(cameras)} camera(s) "
               "(one per camK folder, in order)", file=sys.stderr)
     shapes, cam_names = [c.shape for c in cameras], [c.name or "" for c in cameras]
-    check_mask_sizes(per_cam, numbers, shapes, cam_names)
-    for f in numbers:  # every mask decodes, before anything is written (a truncated PNG mid-sequence)
-        for pc in per_cam:
-            decode_image(pc[f], where=f"{pc[f]}: frame {f}")
+    check_masks(per_cam, numbers, shapes, cam_names)  # every mask decodes, before anything is written
     names = [", ".join(str(pc[f]) for pc in per_cam) for f in numbers]
 
     noted: set = set()  # the masks whose thresholding was noted: the first frames are read twice

@@ -483,11 +483,6 @@ SEGMENTED_MASKS = Preset("segmented masks", {"limb_search_drop": 0.03})
 _PEOPLE = {"prediction": "learnt", "reach_search": True}
 PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": False, "reach_rest": 0, "spine_twist": 0.05,
                            "twist_prior": 1.0, "twist_free": 90.0})
-#: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
-#: priors (they made the one-camera walk worse), and the upright, rest and ground priors
-#: hold what one view does not fix (the rest: the starting pose, the way the subject
-#: stands; the ground: the floor at the lowest foot of q0, along ``up``; docs/tracking.md,
-#: docs/design/tracking-history.md)
 #: :data:`PEOPLE` with three tracks beside it (``second_track``): the thighs held off the
 #: midline, that and the legs' midline prior, a shorter motion memory; each frame the
 #: best-fitting pose of the four, then each part from the others where that fits better.
@@ -497,6 +492,11 @@ PEOPLE = Preset("people", {**_PEOPLE, "reach_always": "arms", "reach_skip": Fals
 PEOPLE_TRACKS = Preset("people, four tracks", {**PEOPLE.overrides,
                                                "second_track": "midline=1; midline=1,midline_legs=0.1; "
                                                                "prediction_memory=3"})
+#: a person walking or standing, seen by one camera: :data:`PEOPLE` without the twist
+#: priors (they made the one-camera walk worse), and the upright, rest and ground priors
+#: hold what one view does not fix (the rest: the starting pose, the way the subject
+#: stands; the ground: the floor at the lowest foot of q0, along ``up``; docs/tracking.md,
+#: docs/design/tracking-history.md)
 PEOPLE_ONE_CAMERA = Preset("people, one camera", {**_PEOPLE, "upright": 0.1, "rest_prior": 0.01, "rest_pose": "start",
                                                   "ground": 0.1})
 

@@ -458,10 +458,11 @@ def _size_error(path: Path, frame: int, width: int, height: int, shape: tuple[in
     return InputDataError(f"{path}: frame {frame}: mask is {width}x{height} but camera{cam} is {shape[1]}x{shape[0]}")
 
 
-def check_mask_sizes(per_cam: list[dict[int, Path]], numbers: list[int], shapes: list[tuple[int, int]],
-                     names: list[str]) -> None:
-    """Before anything is written: every mask's size (H, W) against its camera's
-    ``shapes``, from its PNG header (a file that is not a PNG is decoded instead)."""
+def check_masks(per_cam: list[dict[int, Path]], numbers: list[int], shapes: list[tuple[int, int]],
+                names: list[str]) -> None:
+    """Before anything is written: every mask decodes, at its camera's size (H, W) in
+    ``shapes`` (a PNG's size read from its header first, so a mask of the wrong size is
+    refused as such even when it is also damaged)."""
     for pc, shape, name in zip(per_cam, shapes, names):
         for f in numbers:
             path = pc[f]
@@ -474,8 +475,9 @@ def check_mask_sizes(per_cam: list[dict[int, Path]], numbers: list[int], shapes:
                 w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
                 if (h, w) != shape:
                     raise _size_error(path, f, w, h, shape, name)
-            else:
-                read_mask(path, f, shape, name)
+            img = decode_image(path, where=f"{path}: frame {f}")
+            if img.shape[:2] != shape:
+                raise _size_error(path, f, img.shape[1], img.shape[0], shape, name)
 
 
 def read_mask(path: Path, frame: int, shape: tuple[int, int], name: str = "",
