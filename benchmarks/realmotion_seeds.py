@@ -5,7 +5,7 @@ change is judged over about twenty seeds, paired.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/realmotion_seeds.py --only walk-2cam-320
         --seeds 0-19 [--jobs 2] [--option NAME=VALUE] [--variant NAME=VALUE[,NAME=VALUE...]]
-        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways] [--beside] [--stretches]
+        [--frames N] [--bvh FILE] [--cache DIR] [--both-ways] [--beside] [--stretches] [--temporal]
 
 Per case: the mean joint error of each seed (mm, the 13 joints of ``realmotion.py``), then
 over the seeds their mean, median, range and standard deviation; the median over the
@@ -20,7 +20,10 @@ parts taken from the frames beside, without a backward pass (``track --beside``)
 smoothed, against the forward track smoothed; with ``--stretches`` (and tracks beside:
 ``second_track`` in ``--option`` or ``--variant``) each stretch from the track that fits it
 best, then the parts (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw and
-smoothed, against the track as it was tracked, and the whole poses alone; frames/s of
+smoothed, against the track as it was tracked, and the whole poses alone; with ``--temporal``
+the finished track (the stretches' with ``--stretches``, else the track) refit over time
+(``track --temporal``, :mod:`kms2pin.ecm.temporal`), raw and smoothed, against that track
+and its process time per frame; frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -45,6 +48,7 @@ import realmotion as rm  # noqa: E402
 
 from kms2pin.ecm.bothways import MARGIN, beside, both_ways, choose  # noqa: E402
 from kms2pin.ecm.stretches import stretches  # noqa: E402
+from kms2pin.ecm.temporal import temporal  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -57,7 +61,7 @@ def _sequence(bvh: Path, motion: str, frames: int | None) -> rm.Sequence:
 
 def track_seed(job: tuple) -> dict:
     """One case's track on one seed's masks: its figures (module docstring)."""
-    name, bvh, frames, seed, cache, options, two_ways, one_beside, stretch = job
+    name, bvh, frames, seed, cache, options, two_ways, one_beside, stretch, over_time = job
     motion, n, factor, preset = rm.CASES[name]
     seq = _sequence(bvh, motion, frames)
     cameras = rm.rig(seq.path, n, factor)
@@ -102,6 +106,18 @@ def track_seed(job: tuple) -> dict:
                 "knees2_stretches_raw": (flex_t[:, :2] ** 2).mean(), "elbows2_stretches_raw": (flex_t[:, 2:] ** 2).mean(),
                 "stretches_whole": scored(whole)[0].mean(), "stretches_whole_smoothed": smoothed(whole)[0].mean(),
                 "changes": int(np.sum(st.track[1:] != st.track[:-1]))}
+    if over_time:  # --temporal: the finished track refit over time
+        base = st.q if tracks is not None else q
+        t0 = time.process_time()
+        tm = temporal(tracker, masks, base)
+        seconds = (time.process_time() - t0) / len(masks)
+        (err_m, flex_m), (err_ms, flex_ms) = scored(tm.q), smoothed(tm.q)
+        err_b = scored(base)[0]
+        row |= {"temporal": err_m.mean(), "temporal_base": err_b.mean(), "temporal_smoothed": err_ms.mean(),
+                "worst_temporal": err_m.mean(axis=1).max(), "over120_temporal": int(np.sum(err_m.mean(axis=1) > 120.0)),
+                "knees2_temporal": (flex_m[:, :2] ** 2).mean(), "elbows2_temporal": (flex_m[:, 2:] ** 2).mean(),
+                "knees2_temporal_smoothed": (flex_ms[:, :2] ** 2).mean(),
+                "elbows2_temporal_smoothed": (flex_ms[:, 2:] ** 2).mean(), "temporal_ms": 1e3 * seconds}
     if two_ways:  # --both-ways: the frames tracked backwards too, the better-fitting pose kept (track --both-ways)
         bw = both_ways(seq.model, cameras, masks, q, **{**preset, **options})
         err_b, flex_b = smoothed(bw.q)
@@ -146,7 +162,7 @@ def report(label: str, rows: list[dict]) -> str:
             f"{np.median(smoothed):.1f}, the seeds' means {np.mean(smoothed - means):+.1f} mm; flexion RMSE knees "
             f"{np.sqrt(np.mean([r['knees2_smoothed'] for r in rows])):.1f}, elbows "
             f"{np.sqrt(np.mean([r['elbows2_smoothed'] for r in rows])):.1f} deg" + _beside(rows, smoothed)
-            + _both(rows, means) + _stretches(rows, means, smoothed))
+            + _both(rows, means) + _stretches(rows, means, smoothed) + _temporal(rows))
 
 
 def _beside(rows: list[dict], smoothed: np.ndarray) -> str:
@@ -230,6 +246,29 @@ def _stretches(rows: list[dict], means: np.ndarray, smoothed: np.ndarray) -> str
             f"({against(col('stretches_whole'), means)}), smoothed {col('stretches_whole_smoothed').mean():.1f}")
 
 
+def _temporal(rows: list[dict]) -> str:
+    """The ``--temporal`` lines of :func:`report` (empty without them)."""
+    if "temporal" not in rows[0]:
+        return ""
+
+    def col(key: str) -> np.ndarray:
+        return np.array([r[key] for r in rows])
+
+    def rms(key: str) -> float:
+        return float(np.sqrt(np.mean(col(key))))
+
+    raw, sm, base = col("temporal"), col("temporal_smoothed"), col("temporal_base")
+    return (f"\n    refit over time (track --temporal, of the {'stretches' if 'stretches' in rows[0] else 'track'}; "
+            f"{np.median(col('temporal_ms')):.0f} ms a frame, median): mean {raw.mean():.1f} mm, median "
+            f"{np.median(raw):.1f}, worst frame {np.median(col('worst_temporal')):.0f} (median; max "
+            f"{col('worst_temporal').max():.0f}), none above 120 mm on {sum(r['over120_temporal'] == 0 for r in rows)} "
+            f"of {len(rows)} seeds; against what it refit {_against(raw, base, 2)}; flexion RMSE knees "
+            f"{rms('knees2_temporal'):.1f}, elbows {rms('elbows2_temporal'):.1f} deg\n"
+            f"    refit over time, smoothed: mean {sm.mean():.1f} mm, median {np.median(sm):.1f}; against the refit "
+            f"{_against(sm, raw, 2)}; flexion RMSE knees {rms('knees2_temporal_smoothed'):.1f}, elbows "
+            f"{rms('elbows2_temporal_smoothed'):.1f} deg")
+
+
 def paired(base: list[dict], variant: list[dict]) -> str:
     """The variant's seeds' means against the preset's, seed by seed."""
     d = np.array([v["mean"] - b["mean"] for b, v in zip(base, variant)])
@@ -268,6 +307,9 @@ def main() -> None:
     p.add_argument("--stretches", action="store_true",
                    help="with tracks beside (second_track), also keep each stretch from the track that fits it "
                         "best, then the parts (track --stretches; seconds to tens of seconds)")
+    p.add_argument("--temporal", action="store_true",
+                   help="also refit the finished track over time (the stretches' with --stretches; track --temporal; "
+                        "seconds to a minute)")
     p.add_argument("--cache", type=Path, default=rm.CACHE,
                    help="where rendered masks are kept between runs")
     a = p.parse_args()
@@ -285,7 +327,8 @@ def main() -> None:
         sets["variant"] = {**options, **rm.parse_options(rm.split_items(a.variant), "--variant", p.error)}
     if a.stretches and not any(opts.get("second_track") for opts in sets.values()):
         p.error("--stretches chooses among tracks beside: give second_track in --option or --variant")
-    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside, a.stretches) for name in names for opts in sets.values()
+    jobs = [(name, a.bvh, a.frames, seed, a.cache, opts, a.both_ways, a.beside, a.stretches, a.temporal)
+            for name in names for opts in sets.values()
             for seed in seeds]
     with Pool(max(1, a.jobs)) as pool:
         out = pool.map(track_seed, jobs, chunksize=1)

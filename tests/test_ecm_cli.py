@@ -695,6 +695,44 @@ def test_stretches_writes_each_stretch_from_the_track_that_fits_it_and_smooth_us
     _smoothed_and_scored(robot, out, masks, kept, "--stretches", capsys)
 
 
+def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_path, cams2, capsys):
+    """``--temporal`` after ``--beside``: temporal.csv (every frame, numbered as
+    trajectory.csv, no flag of where a pose came from), the weight and sweeps in meta.json
+    and the note; ``--smooth`` then smooths it, motion.bvh shows that, ``evaluate
+    --temporal`` scores it, and the refit is nearer the truth than the track it refit."""
+    masks = _synth(tmp_path, cams2, frames=10, noise=0.05)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--beside", "--temporal",
+                 "--temporal-sweeps", "3", "--temporal-weight", "0.05", "--smooth", "6", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps; mean fit \(IoU\) (\d\.\d+)", err)
+    assert note, err
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["temporal"] is True and meta["temporal_weight"] == 0.05 and meta["temporal_sweeps"] == 3
+    from kms2pin.ecm import Trajectory
+
+    robot = load(LOWER, root="free")
+    kept = Trajectory.from_csv(robot, out / "temporal.csv").q
+    rows = (out / "temporal.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == [str(k) for k in range(10)]
+    assert "taken from" not in "".join(rows)
+    fits = [float(r.split(",")[rows[0].split(",").index("fit")]) for r in rows[1:]]
+    assert float(note[1]) == pytest.approx(np.mean(fits), abs=6e-4)
+    assert not np.allclose(kept, Trajectory.from_csv(robot, out / "beside.csv").q, atol=1e-6)
+    reports = []
+    for extra in (["--beside"], ["--temporal"]):
+        assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json", *extra]) == 0
+        reports.append(json.loads(capsys.readouterr().out))
+    assert reports[1]["revolute_rmse_deg"] < 0.9 * reports[0]["revolute_rmse_deg"]  # (2.36 -> 1.79 deg)
+    _smoothed_and_scored(robot, out, masks, kept, "--temporal", capsys)
+
+
+def test_evaluate_temporal_without_that_track_says_how_to_make_it(tracked, capsys):
+    out, truth = tracked
+    assert main(["evaluate", str(out), str(truth), "--temporal"]) == 1
+    assert "no temporal.csv (written by kms2pin track --temporal)" in capsys.readouterr().err
+
+
 def test_the_people_tracks_preset_runs_the_guides_offline_command(tmp_path, cams2, capsys):
     """The tracking guide's choice for a finished recording, ``--preset people-tracks
     --stretches --jobs 2``: four tracks (the first and the preset's three beside it), the

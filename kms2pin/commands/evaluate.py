@@ -21,6 +21,11 @@ NAME = "evaluate"
 HELP = "accuracy of a track output against the true trajectory"
 
 
+#: the flags that score another of track's outputs, and its file
+_WRITTEN = (("smoothed", "smoothed.csv"), ("both_ways", "both_ways.csv"), ("beside", "beside.csv"),
+            ("stretches", "stretches.csv"), ("temporal", "temporal.csv"))
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", metavar="OUT", help="folder written by kms2pin track")
     p.add_argument("truth", metavar="TRUTH.csv", help="true trajectory (truth.csv of kms2pin synth)")
@@ -33,6 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="score OUT/beside.csv (written by track --beside) instead of OUT/trajectory.csv")
     which.add_argument("--stretches", action="store_true",
                        help="score OUT/stretches.csv (written by track --stretches) instead of OUT/trajectory.csv")
+    which.add_argument("--temporal", action="store_true",
+                       help="score OUT/temporal.csv (written by track --temporal) instead of OUT/trajectory.csv")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -45,11 +52,11 @@ def run(args: argparse.Namespace) -> int:
     for name in ("meta.json", "model.kms", "trajectory.csv"):
         if not (out / name).is_file():
             raise InputDataError(f"{out}: not a kms2pin track output (no {name})")
-    track_csv = out / ("smoothed.csv" if args.smoothed else "both_ways.csv" if args.both_ways
-                       else "beside.csv" if args.beside else "stretches.csv" if args.stretches else "trajectory.csv")
+    chosen = [(f, csv) for f, csv in _WRITTEN if getattr(args, f)]
+    flag, name = chosen[0] if chosen else ("", "trajectory.csv")
+    track_csv = out / name
     if not track_csv.is_file():
-        flag = ("--smooth HZ" if args.smoothed else "--both-ways" if args.both_ways else "--beside" if args.beside
-                else "--stretches")
+        flag = "--smooth HZ" if flag == "smoothed" else "--" + flag.replace("_", "-")
         raise InputDataError(f"{out}: no {track_csv.name} (written by kms2pin track {flag})")
     if Path(args.truth).is_dir():
         raise UsageError(f"{args.truth}: is a directory, not a trajectory CSV file")

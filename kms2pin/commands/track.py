@@ -19,7 +19,9 @@ frames beside it (kms2pin.ecm.bothways); with --beside alone, beside.csv takes t
 beside on the forward track, without the backward pass; with --stretches and tracks
 beside (--second-track), stretches.csv keeps each stretch of frames from the track that
 fits it best, changing track where the tracks agree, then each part from the other tracks
-and from the frames beside (kms2pin.ecm.stretches);
+and from the frames beside (kms2pin.ecm.stretches); with --temporal, temporal.csv
+is the finished track (the last of those) refit frame by frame by ECM with a spring
+towards the frames beside it, over several sweeps (kms2pin.ecm.temporal);
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
 
@@ -45,6 +47,7 @@ import cv2
 import numpy as np
 
 from ..bvh import to_bvh
+from ..ecm import temporal as over_time
 from ..ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, beside, both_ways, parts
 from ..ecm.camera import Camera
 from ..ecm.options import SEGMENTED_MASKS, track_changes
@@ -58,7 +61,16 @@ from ..errors import BvhError, InputDataError, Kms2pinError, OutputError, UsageE
 from ..robot import Robot
 from ..video.io import check_masks, find_mask_frames, read_mask, remove_masks_from, write_mask
 from ..video.segmentation import DEFAULT_METHOD, METHODS
-from ._common import Once, add_spec_argument, existing_file, lighting_notes, positive, positive_count, read_model
+from ._common import (
+    Once,
+    add_spec_argument,
+    existing_file,
+    lighting_notes,
+    non_negative,
+    positive,
+    positive_count,
+    read_model,
+)
 from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
 from ._tracking import add_tracker_arguments, tracker_options
 from .segment import add_lighting_arguments
@@ -105,6 +117,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "each frame each part (as --both-ways takes them) from the other tracks and from the frames "
                         "beside it where that fits better (seconds to tens of seconds; motion.bvh, animation.html "
                         "and --smooth then use it)")
+    p.add_argument("--temporal", action="store_true",
+                   help="also write temporal.csv: the finished track (of --stretches, --both-ways or --beside if "
+                        "given) refit on each frame by ECM with a spring towards the midpoint of the frames beside "
+                        "it, in sweeps over the recording, so that what the masks hardly fix (a thin arm, an elbow) "
+                        "follows the frames around it (seconds to a minute for a few hundred frames; motion.bvh, "
+                        "animation.html and --smooth then use it)")
+    p.add_argument("--temporal-weight", type=non_negative, metavar="K", default=over_time.WEIGHT,
+                   help=f"with --temporal, the spring's stiffness, in the frame's mean data stiffness (default "
+                        f"{over_time.WEIGHT:g}; 0: ECM alone)")
+    p.add_argument("--temporal-sweeps", type=positive_count, metavar="N", default=over_time.SWEEPS,
+                   help=f"with --temporal, the sweeps over the frames (default {over_time.SWEEPS})")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -132,7 +155,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
-            "smoothed.csv", "both_ways.csv", "beside.csv", "stretches.csv")
+            "smoothed.csv", "both_ways.csv", "beside.csv", "stretches.csv", "temporal.csv")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
@@ -324,6 +347,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
     if args.stretches:
         meta |= {"stretches": True, "stretches_tracks": 1 + len(tracker.tracks_beside), "stretches_switch": SWITCH,
                  "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
+    if args.temporal:
+        meta |= {"temporal": True, "temporal_weight": args.temporal_weight, "temporal_sweeps": args.temporal_sweeps}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -509,6 +534,35 @@ def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, 
     return st.q
 
 
+def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
+                     qs: np.ndarray) -> np.ndarray:
+    """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
+    (:func:`kms2pin.ecm.temporal.temporal`, at the last frame's body sizes); returns its poses."""
+    progress = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        sweep = iter(range(1, args.temporal_sweeps + 1))
+
+        def progress(it):
+            return tqdm(it, unit="frame", desc=f"over time {next(sweep)}/{args.temporal_sweeps}", leave=False)
+    n = len(results)
+    tm = over_time.temporal(tracker, _Masks(frames), qs, weight=args.temporal_weight, sweeps=args.temporal_sweeps,
+                  sources=_frame_names(frames, n), progress=progress)
+    rows = []
+    for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
+        fit = float(tm.fit[k])
+        flags = [f for f in r.flags if not is_track_flag(f) and not is_part_flag(f) and not f.startswith(POOR_FIT)]
+        flags += [poor_fit_flag(fit)] if r.iterations and fit < tracker.options.silhouette.poor_fit else []
+        rows.append(dataclasses.replace(r, q=tm.q[k].copy(), body_poses=robot.maximal_coordinates(tm.q[k]), fit=fit,
+                                        flags=tuple(flags)))
+    with replaced(out / "temporal.csv") as tmp:
+        Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
+    print(f"note: --temporal: {n} frames refit over {args.temporal_sweeps} sweeps; mean fit (IoU) "
+          f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)
+    return tm.q
+
+
 def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, meta: dict) -> None:
     """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html, motion.bvh (if
     the model can be written as BVH; the last two of ``qs``, smoothed with ``--smooth``) and
@@ -623,6 +677,8 @@ def _run_tracker(args, out: Path, robot: Robot, options, tracker: Tracker, frame
         qs = _track_backwards(args, out, robot, options, frames, results, tracker.jobs)
     elif args.beside:
         qs = _take_beside(out, robot, tracker, frames, results)
+    if args.temporal:
+        qs = _refit_over_time(args, out, robot, tracker, frames, results, qs)
     _write_end(out, args, robot, qs, frames, meta)
     _summary(out, results, frames, tracker.options.silhouette.poor_fit, video_mode)
     return 0

@@ -60,6 +60,7 @@ class FrameECM:
         self.motion = Motion(robot, options.iteration.max_prediction_deg)
         self.forget_motion()
         self._depth: DepthPrior | None = None
+        self._extra: list[SpringTerm] = []  # the priors of the run under way (run's ``priors``)
 
     def forget_motion(self) -> None:
         """Start the learnt motion model afresh (``prediction="learnt"``; else nothing)."""
@@ -98,7 +99,7 @@ class FrameECM:
         if opt.springs.static == "diagonal":
             q_new = diagonal_update(self.robot, q, fits, opt.springs.stiffness_floor)
         else:
-            terms = ([self._depth] if self._depth is not None else []) + self.priors
+            terms = ([self._depth] if self._depth is not None else []) + self.priors + self._extra
             q_new = full_update(self.robot, q, fits, self.sizes.inner, opt.springs.stiffness_floor,
                                 opt.springs.static_iterations, terms)
         t3 = time.perf_counter()
@@ -112,13 +113,16 @@ class FrameECM:
         return body_outline_pixels(Rs, ts, self.sizes.inner, cameras)
 
     def run(self, q: np.ndarray, views: Views, timings: dict, max_iterations: int | None = None,
-            coarse: Views | None = None, binned: bool = False) -> tuple[np.ndarray, int, bool]:
+            coarse: Views | None = None, binned: bool = False,
+            priors: Sequence[SpringTerm] = ()) -> tuple[np.ndarray, int, bool]:
         """ECM iterations from ``q`` until the configuration settles (module docstring),
         at most ``max_iterations`` (default the options'); returns the configuration, the
         iterations run and whether it converged.  ``coarse``: the views binned 2x2 for the
-        iterations whose edge is at least ``coarse_delta_px`` wide, or for all if ``binned``."""
+        iterations whose edge is at least ``coarse_delta_px`` wide, or for all if ``binned``;
+        ``priors``: springs added to the standing ones for this run only."""
         it_opt = self.options.iteration
         self._set_depth_prior(q, views.cameras)
+        self._extra = list(priors)
         it = 0
         delta = it_opt.delta_start
         limit = it_opt.max_iterations if max_iterations is None else max(1, int(max_iterations))

@@ -345,22 +345,24 @@ class Tracker:
         """One ECM iteration from ``q`` (:meth:`FrameECM.iterate`); returns the new q."""
         return self.ecm.iterate(q, Views.of(self.cameras if cameras is None else cameras, masks), delta_px, timings)
 
-    def _one_frame(self, q, masks, source: str) -> tuple[Views, np.ndarray, dict] | None:
-        """ECM from ``q`` on one frame's masks (no prediction, no hypotheses), or None if
-        no mask can drive the pose (:func:`~kms2pin.ecm.masks.mask_problem`)."""
+    def _one_frame(self, q, masks, source: str, priors: Sequence = ()) -> tuple[Views, np.ndarray, dict] | None:
+        """ECM from ``q`` on one frame's masks (no prediction, no hypotheses; ``priors``
+        added to the standing ones), or None if no mask can drive the pose
+        (:func:`~kms2pin.ecm.masks.mask_problem`)."""
         views = Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean))
         views = views.seeing()
         if not len(views):
             return None
         timings = new_timings()
         q_new, _, _ = self.ecm.run(self.robot.clamp(np.array(q, dtype=float)), views, timings,
-                                   coarse=self._coarse(views))
+                                   coarse=self._coarse(views), priors=priors)
         return views, q_new, timings
 
-    def refine(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float]:
+    def refine(self, q: np.ndarray, masks, source: str = "frame", priors: Sequence = ()) -> tuple[np.ndarray, float]:
         """ECM on one frame's ``masks`` from ``q``, leaving the tracker as it was; returns
-        the configuration and its fit (IoU)."""
-        done = self._one_frame(q, masks, source)
+        the configuration and its fit (IoU).  ``priors``: springs of the static update
+        added for this frame (:mod:`kms2pin.ecm.temporal`)."""
+        done = self._one_frame(q, masks, source, priors)
         if done is None:
             return np.array(q, dtype=float), 0.0
         views, q_new, _ = done

@@ -1,0 +1,99 @@
+"""A finished track refit over time: each frame's ECM held towards the frames beside it (offline).
+
+A frame's silhouettes fix some coordinates firmly and others hardly at all: an arm three
+or four pixels wide, an elbow nearly straight, a limb in front of the trunk.  Tracked
+frame by frame, those coordinates wander from frame to frame within what the masks
+allow.  Low-pass filtering (:mod:`~kms2pin.ecm.smoothing`) smooths them without the
+masks, so it also cuts real fast motion.  :func:`temporal` keeps the masks and adds time.
+Each frame ``t`` is refit by the frame's ECM (:meth:`~kms2pin.ecm.tracker.Tracker.refine`)
+with one more spring in the static update (§2.3.3, eq. 2.28, a spring like eq. 2.33's on
+every coordinate; :class:`~kms2pin.ecm.priors.RestPrior`):
+
+    E_t(q) = E_masks,t(q) + ½ k |q ⊖ m_t|²,   m_t = the midpoint of q_{t-1} and q_{t+1}
+
+``⊖`` is ``pin.difference`` and the midpoint ``pin.interpolate`` (a free root's rotation
+on the sphere).  The first and last frames take the midpoint of themselves and their one
+neighbour.  The stiffness is the same for every coordinate: ``weight`` times the mean
+stiffness of the frame's data springs.  So a coordinate the masks fix firmly hardly
+moves, and one they hardly fix follows its neighbours.  A sweep refits every frame from
+the last sweep's poses and midpoints (a Jacobi sweep: the order of the frames does not
+matter).  Repeated sweeps spread the pull over longer stretches, like a second-difference
+prior over the recording.  The track should already hold the subject
+(:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
+throughout is not found again.  It uses the frames after each frame, so it is for a
+finished recording.  Measured on real motion: docs/tracking.md, "Real motion".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .priors import RestPrior
+from .tracker import Tracker
+
+__all__ = ["SWEEPS", "WEIGHT", "Temporal", "temporal"]
+
+#: the spring towards the frames beside, in the frame's mean data stiffness
+#: (docs/design/tracking-history.md)
+WEIGHT = 0.01
+#: how many sweeps over the frames (docs/design/tracking-history.md)
+SWEEPS = 8
+
+
+@dataclass(frozen=True)
+class Temporal:
+    """The refit track: ``q`` (frames, nq) and each frame's silhouette fit ``fit`` (IoU,
+    at the tracker's body sizes)."""
+
+    q: np.ndarray
+    fit: np.ndarray
+
+
+def midpoints(model: pin.Model, q: np.ndarray) -> np.ndarray:
+    """(frames, nq): each frame's midpoint of the frames before and after it (the first
+    and last: of themselves and their neighbour)."""
+    n = len(q)
+    return np.array([pin.interpolate(model, q[max(t - 1, 0)], q[min(t + 1, n - 1)], 0.5) for t in range(n)])
+
+
+def targets(model: pin.Model, q: np.ndarray) -> np.ndarray:
+    """(frames, nq): each frame's target, halfway from its pose to :func:`midpoints`' (the
+    weights 1/4, 1/2, 1/4 of the frame before, the frame and the frame after)."""
+    if len(q) < 2:
+        return np.array(q, dtype=float)
+    return np.array([pin.interpolate(model, x, m, 0.5) for x, m in zip(q, midpoints(model, q))])
+
+
+def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float = WEIGHT, sweeps: int = SWEEPS,
+             sources: Sequence[str] | None = None, progress: Callable | None = None) -> Temporal:
+    """The track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one mask per
+    camera) refit over time (module docstring) by ``tracker`` (the one that made the
+    track, at the body sizes it ended with): ``sweeps`` sweeps, the spring ``weight``.
+    ``sources`` names each frame in error messages (default ``"frame k"``); ``progress``
+    wraps each sweep's iteration over the frames (a tqdm)."""
+    q = np.array(q, dtype=float)
+    n, robot = len(masks), tracker.robot
+    if q.shape != (n, robot.nq):
+        raise ValueError(f"q must have shape ({n}, {robot.nq}) (one pose per frame), not {q.shape}")
+    if not weight >= 0 or not np.isfinite(weight):
+        raise ValueError(f"weight must be a finite number >= 0, not {weight!r}")
+    if int(sweeps) != sweeps or sweeps < 0:
+        raise ValueError(f"sweeps must be a whole number >= 0, not {sweeps!r}")
+    names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
+    model, dofs = robot.model, np.arange(robot.model.nv)
+    fit = np.zeros(n)
+    for _ in range(int(sweeps)):
+        middle = targets(model, q)
+        new = q.copy()
+        frames = range(n) if progress is None else progress(range(n))
+        for t in frames:
+            prior = (RestPrior(float(weight), model, middle[t], dofs),) if weight > 0 else ()
+            new[t], fit[t] = tracker.refine(q[t], masks[t], source=names[t], priors=prior)
+        q = new
+    if not sweeps:
+        fit = np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)])
+    return Temporal(q, fit)

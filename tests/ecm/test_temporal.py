@@ -1,0 +1,149 @@
+"""kms2pin.ecm.temporal: a track refit over time, judged against the true motion the masks
+were rendered from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import kms2pin
+from kms2pin.ecm import Camera, Tracker, make_motion, synthesize
+from kms2pin.ecm.priors import RestPrior
+from kms2pin.ecm.temporal import SWEEPS, WEIGHT, midpoints, targets, temporal
+
+DIR = Path(__file__).resolve().parents[2] / "specs"
+
+
+@pytest.fixture(scope="module")
+def walk():
+    """The lower body walking, seen by one camera (which hardly sees the distance along its
+    rays), and the tracker that measured its sizes on the first frame."""
+    robot = kms2pin.load(DIR / "lowerbody.kms", root="free")
+    rng = np.random.default_rng(7)
+    motion = make_motion(robot, "walk", 14, rng)
+    cams = [Camera.default()]
+    masks = [m for _, m in synthesize(robot, motion, cams, noise=0.02, rng=rng)]
+    tracker = Tracker(robot, cams, q0=motion[0])
+    tracker.calibrate(masks[0])
+    return robot, cams, motion, masks, tracker
+
+
+def _along_ray(robot, cam: Camera, q: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(frames,) the root's distance from the truth along the camera's ray through it (m)."""
+    ray = truth[:, :3] - cam.centre
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    return np.abs(np.sum((q[:, :3] - truth[:, :3]) * ray, axis=1))
+
+
+def _centres(robot, q: np.ndarray, truth: np.ndarray) -> float:
+    """The mean body-centre distance from the truth over the frames (m)."""
+    return float(np.mean([np.mean([np.linalg.norm(a.translation - b.translation) for a, b in
+                                   zip(robot.body_poses(x), robot.body_poses(t))]) for x, t in zip(q, truth)]))
+
+
+def test_depth_noise_follows_the_frames_beside(walk):
+    """The truth with the root moved along the camera's ray by noise (3 % of the height, one
+    standard deviation, each frame its own): one view's ECM alone, as many sweeps, takes off
+    less than half of it along the ray and leaves the body 3/5 of it off; the spring towards
+    the frames beside leaves half of what ECM alone leaves, along the ray and in all."""
+    robot, cams, truth, masks, tracker = walk
+    ray = truth[:, :3] - cams[0].centre
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    noisy = truth.copy()
+    noisy[:, :3] += 0.03 * robot.height * np.random.default_rng(1).standard_normal(len(truth))[:, None] * ray
+    start = _along_ray(robot, cams[0], noisy, truth).mean()
+    alone = temporal(tracker, masks, noisy, weight=0.0, sweeps=SWEEPS)
+    held = temporal(tracker, masks, noisy, weight=0.3, sweeps=SWEEPS)
+    along_alone, along_held = (_along_ray(robot, cams[0], x.q, truth).mean() for x in (alone, held))
+    assert along_alone > 0.3 * start  # the masks alone hardly see it (0.41 of it left)
+    assert along_held < 0.5 * along_alone  # (0.40 of what ECM alone leaves)
+    assert _centres(robot, held.q, truth) < 0.6 * _centres(robot, alone.q, truth)  # (0.48)
+    assert held.fit.shape == (len(truth),) and (held.fit > 0.5).all()
+    assert np.allclose(held.fit, [tracker.fit(x, m) for x, m in zip(held.q, masks)])
+
+
+def test_a_stiff_spring_does_not_swing_a_jitter_from_frame_to_frame(walk):
+    """The root moved along the ray on every other frame only: a sweep towards the
+    neighbours' midpoint alone would move those frames to the truth and the others off by as
+    much (and back on the next sweep); the frame's own pose in the target (1/4, 1/2, 1/4)
+    brings both sets of frames towards each other, each sweep."""
+    robot, cams, truth, masks, tracker = walk
+    ray = truth[:, :3] - cams[0].centre
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    odd, even = np.arange(1, len(truth), 2), np.arange(0, len(truth), 2)
+    jittered = truth.copy()
+    jittered[odd, :3] += 0.04 * robot.height * ray[odd]
+    start = _along_ray(robot, cams[0], jittered, truth)[odd].mean()
+    gaps = []
+    for sweeps in (1, 2, 3):
+        q = temporal(tracker, masks, jittered, weight=3.0, sweeps=sweeps).q
+        off = _along_ray(robot, cams[0], q, truth)
+        assert off[odd].mean() < 0.6 * start
+        gaps.append(abs(off[odd].mean() - off[even].mean()))
+    assert gaps[0] < 0.2 * start and gaps[2] <= gaps[0]
+    mid = targets(robot.model, jittered)
+    assert np.allclose(mid[odd[1:-1], :3], jittered[odd[1:-1], :3] - 0.5 * 0.04 * robot.height * ray[odd[1:-1]],
+                       atol=0.002 * robot.height)  # halfway between the frame and its neighbours
+
+
+def test_one_sweep_without_the_spring_is_each_frames_ecm(walk):
+    robot, _, truth, masks, tracker = walk
+    start = truth.copy()
+    start[:, 0] += 0.01
+    out = temporal(tracker, masks, start, weight=0.0, sweeps=1)
+    for k in (0, 5, len(truth) - 1):
+        q, fit = tracker.refine(start[k], masks[k])
+        assert np.array_equal(out.q[k], q) and out.fit[k] == fit
+    same = temporal(tracker, masks, start, sweeps=0)
+    assert np.array_equal(same.q, start)
+    assert np.allclose(same.fit, [tracker.fit(x, m) for x, m in zip(start, masks)])
+
+
+def test_each_frame_is_held_towards_its_neighbours_midpoint(walk):
+    """The spring of one sweep is the rest prior at the frame's target, halfway from its pose
+    to the midpoint of the frames on either side (the ends: of themselves and their
+    neighbour), as refine runs it."""
+    robot, _, truth, masks, tracker = walk
+    start = truth.copy()
+    start[3, 7] += 0.3  # a joint off on one frame
+    middle = midpoints(robot.model, start)
+    # the midpoint, written out: the joints' mean, the root halfway along the screw between
+    for t, (a, b) in {0: (0, 1), 3: (2, 4), len(start) - 1: (len(start) - 2, len(start) - 1)}.items():
+        assert np.allclose(middle[t][7:], 0.5 * (start[a][7:] + start[b][7:]))
+        # the root halfway along SE(3)'s screw from one frame's placement to the other's
+        A, B = (pin.XYZQUATToSE3(start[k][:7]) for k in (a, b))
+        M = A * pin.exp6(0.5 * pin.log6(A.inverse() * B))
+        got = pin.XYZQUATToSE3(middle[t][:7])
+        assert np.allclose(got.translation, M.translation, atol=1e-9)
+        assert np.allclose(got.rotation, M.rotation, atol=1e-9)
+    out = temporal(tracker, masks, start, weight=0.5, sweeps=1)
+    assert np.allclose(targets(robot.model, start)[3][7:], 0.25 * start[2][7:] + 0.5 * start[3][7:] + 0.25 * start[4][7:])
+    prior = RestPrior(0.5, robot.model, targets(robot.model, start)[3], np.arange(robot.model.nv))
+    q, fit = tracker.refine(start[3], masks[3], priors=(prior,))
+    assert np.array_equal(out.q[3], q) and out.fit[3] == fit
+
+
+def test_an_empty_frame_keeps_its_pose_and_the_callers_track_is_left_as_it_was(walk):
+    robot, _, truth, masks, tracker = walk
+    frames = [list(m) for m in masks[:5]]
+    frames[2] = [np.zeros_like(m) for m in frames[2]]
+    start = truth[:5].copy()
+    before = start.copy()
+    out = temporal(tracker, frames, start, weight=WEIGHT, sweeps=2)
+    assert np.array_equal(start, before)
+    assert np.array_equal(out.q[2], start[2]) and out.fit[2] == 0.0
+
+
+def test_a_track_of_another_length_or_bad_settings_are_refused(walk):
+    robot, _, truth, masks, tracker = walk
+    with pytest.raises(ValueError, match="one pose per frame"):
+        temporal(tracker, masks, truth[:-1])
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="weight"):
+            temporal(tracker, masks, truth, weight=bad)
+    for bad in (-1, 1.5):
+        with pytest.raises(ValueError, match="sweeps"):
+            temporal(tracker, masks, truth, sweeps=bad)
