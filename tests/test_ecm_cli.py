@@ -727,6 +727,29 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
     _smoothed_and_scored(robot, out, masks, kept, "--temporal", capsys)
 
 
+def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted(tmp_path, capsys):
+    from kms2pin.ecm.temporal import SWEEPS as T_SWEEPS
+    from kms2pin.ecm.temporal import WEIGHT as T_WEIGHT
+
+    masks = _synth(tmp_path, frames=3)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--temporal", "-o", str(out)]) == 0
+    assert f"note: --temporal: 3 frames refit over {T_SWEEPS} sweeps" in capsys.readouterr().err
+    meta = json.loads((out / "meta.json").read_text())
+    assert (meta["temporal_weight"], meta["temporal_sweeps"]) == (T_WEIGHT, T_SWEEPS) == (0.01, 8)
+    other = tmp_path / "other"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--temporal-sweeps", "2",
+                 "-o", str(other)]) == 0
+    err = capsys.readouterr().err
+    assert "note: --temporal-weight and --temporal-sweeps set the refit of --temporal; without it they do nothing" in err
+    assert not (other / "temporal.csv").exists() and "temporal" not in json.loads((other / "meta.json").read_text())
+    for bad in (["--temporal-weight", "-1"], ["--temporal-sweeps", "0"], ["--temporal-weight", "nan"]):
+        with pytest.raises(SystemExit) as exc:  # argparse's own type check
+            main(["track", LOWER, "--masks", str(masks), "--temporal", *bad, "-o", str(tmp_path / "bad")])
+        assert exc.value.code == 2 and bad[0] in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_evaluate_temporal_without_that_track_says_how_to_make_it(tracked, capsys):
     out, truth = tracked
     assert main(["evaluate", str(out), str(truth), "--temporal"]) == 1

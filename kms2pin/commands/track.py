@@ -123,10 +123,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "it, in sweeps over the recording, so that what the masks hardly fix (a thin arm, an elbow) "
                         "follows the frames around it (seconds to a minute for a few hundred frames; motion.bvh, "
                         "animation.html and --smooth then use it)")
-    p.add_argument("--temporal-weight", type=non_negative, metavar="K", default=over_time.WEIGHT,
+    p.add_argument("--temporal-weight", type=non_negative, metavar="K",
                    help=f"with --temporal, the spring's stiffness, in the frame's mean data stiffness (default "
                         f"{over_time.WEIGHT:g}; 0: ECM alone)")
-    p.add_argument("--temporal-sweeps", type=positive_count, metavar="N", default=over_time.SWEEPS,
+    p.add_argument("--temporal-sweeps", type=positive_count, metavar="N",
                    help=f"with --temporal, the sweeps over the frames (default {over_time.SWEEPS})")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
@@ -323,6 +323,9 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
         which = "both_ways.csv" if args.both_ways else "stretches.csv"
         print(f"note: --beside with --{'both-ways' if args.both_ways else 'stretches'}: {which} already takes the "
               "frames beside, so beside.csv is not written", file=sys.stderr)
+    if not args.temporal and (args.temporal_weight is not None or args.temporal_sweeps is not None):
+        print("note: --temporal-weight and --temporal-sweeps set the refit of --temporal; without it they do nothing",
+              file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
@@ -348,7 +351,7 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
         meta |= {"stretches": True, "stretches_tracks": 1 + len(tracker.tracks_beside), "stretches_switch": SWITCH,
                  "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
     if args.temporal:
-        meta |= {"temporal": True, "temporal_weight": args.temporal_weight, "temporal_sweeps": args.temporal_sweeps}
+        meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args)}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -534,6 +537,16 @@ def _keep_stretches(out: Path, robot: Robot, tracker: Tracker, frames: _Frames, 
     return st.q
 
 
+def _weight(args) -> float:
+    """``--temporal-weight``, or the refit's default."""
+    return over_time.WEIGHT if args.temporal_weight is None else args.temporal_weight
+
+
+def _sweeps(args) -> int:
+    """``--temporal-sweeps``, or the refit's default."""
+    return over_time.SWEEPS if args.temporal_sweeps is None else args.temporal_sweeps
+
+
 def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
                      qs: np.ndarray) -> np.ndarray:
     """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
@@ -542,12 +555,12 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     if not args.no_progress:
         from tqdm import tqdm
 
-        sweep = iter(range(1, args.temporal_sweeps + 1))
+        sweep = iter(range(1, _sweeps(args) + 1))
 
         def progress(it):
-            return tqdm(it, unit="frame", desc=f"over time {next(sweep)}/{args.temporal_sweeps}", leave=False)
+            return tqdm(it, unit="frame", desc=f"over time {next(sweep)}/{_sweeps(args)}", leave=False)
     n = len(results)
-    tm = over_time.temporal(tracker, _Masks(frames), qs, weight=args.temporal_weight, sweeps=args.temporal_sweeps,
+    tm = over_time.temporal(tracker, _Masks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
                   sources=_frame_names(frames, n), progress=progress)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
@@ -558,7 +571,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                                         flags=tuple(flags)))
     with replaced(out / "temporal.csv") as tmp:
         Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
-    print(f"note: --temporal: {n} frames refit over {args.temporal_sweeps} sweeps; mean fit (IoU) "
+    print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps; mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)
     return tm.q
 
