@@ -119,8 +119,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "and --smooth then use it)")
     p.add_argument("--temporal", action="store_true",
                    help="also write temporal.csv: the finished track (of --stretches, --both-ways or --beside if "
-                        "given) refit on each frame by ECM with a spring towards the midpoint of the frames beside "
-                        "it, in sweeps over the recording, so that what the masks hardly fix (a thin arm, an elbow) "
+                        "given) refit on each frame by ECM with a spring towards the frames beside it (its target: "
+                        "1/4 the frame before, 1/2 its own pose, 1/4 the frame after), in sweeps over the recording, so that what the masks hardly fix (a thin arm, an elbow) "
                         "follows the frames around it (seconds to a minute for a few hundred frames; motion.bvh, "
                         "animation.html and --smooth then use it)")
     p.add_argument("--temporal-weight", type=non_negative, metavar="K",
@@ -561,7 +561,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
             return tqdm(it, unit="frame", desc=f"over time {next(sweep)}/{_sweeps(args)}", leave=False)
     n = len(results)
     tm = over_time.temporal(tracker, _Masks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
-                  sources=_frame_names(frames, n), progress=progress)
+                            sources=_frame_names(frames, n), progress=progress)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
         fit = float(tm.fit[k])
