@@ -120,9 +120,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--temporal", action="store_true",
                    help="also write temporal.csv: the finished track (of --stretches, --both-ways or --beside if "
                         "given) refit on each frame by ECM with a spring towards the frames beside it (its target: "
-                        "1/4 the frame before, 1/2 its own pose, 1/4 the frame after), in sweeps over the recording, so that what the masks hardly fix (a thin arm, an elbow) "
-                        "follows the frames around it (seconds to a minute for a few hundred frames; motion.bvh, "
-                        "animation.html and --smooth then use it)")
+                        "1/4 the frame before, 1/2 its own pose, 1/4 the frame after), in sweeps over the "
+                        "recording, so that what the masks hardly fix (a thin arm, an elbow) follows the frames "
+                        "around it (seconds to a minute for a few hundred frames; motion.bvh, animation.html and "
+                        "--smooth then use it)")
     p.add_argument("--temporal-weight", type=non_negative, metavar="K",
                    help=f"with --temporal, the spring's stiffness, in the frame's mean data stiffness (default "
                         f"{over_time.WEIGHT:g}; 0: ECM alone)")

@@ -60,7 +60,6 @@ class FrameECM:
         self.motion = Motion(robot, options.iteration.max_prediction_deg)
         self.forget_motion()
         self._depth: DepthPrior | None = None
-        self._extra: list[SpringTerm] = []  # the priors of the run under way (run's ``priors``)
 
     def forget_motion(self) -> None:
         """Start the learnt motion model afresh (``prediction="learnt"``; else nothing)."""
@@ -79,8 +78,10 @@ class FrameECM:
         poses, Rs, ts = self.poses(q)
         return silhouette_iou(poses, self.sizes.inner, views.cameras, views.masks, (Rs, ts))
 
-    def iterate(self, q: np.ndarray, views: Views, delta_px: float, timings: dict) -> np.ndarray:
-        """One ECM iteration from ``q``; returns the new configuration."""
+    def iterate(self, q: np.ndarray, views: Views, delta_px: float, timings: dict,
+                priors: Sequence[SpringTerm] = ()) -> np.ndarray:
+        """One ECM iteration from ``q`` (``priors``: springs added to the standing ones);
+        returns the new configuration."""
         opt = self.options
         m = opt.mstep
         t0 = time.perf_counter()
@@ -99,7 +100,7 @@ class FrameECM:
         if opt.springs.static == "diagonal":
             q_new = diagonal_update(self.robot, q, fits, opt.springs.stiffness_floor)
         else:
-            terms = ([self._depth] if self._depth is not None else []) + self.priors + self._extra
+            terms = ([self._depth] if self._depth is not None else []) + self.priors + list(priors)
             q_new = full_update(self.robot, q, fits, self.sizes.inner, opt.springs.stiffness_floor,
                                 opt.springs.static_iterations, terms)
         t3 = time.perf_counter()
@@ -122,7 +123,6 @@ class FrameECM:
         ``priors``: springs added to the standing ones for this run only."""
         it_opt = self.options.iteration
         self._set_depth_prior(q, views.cameras)
-        self._extra = list(priors)
         it = 0
         delta = it_opt.delta_start
         limit = it_opt.max_iterations if max_iterations is None else max(1, int(max_iterations))
@@ -137,9 +137,9 @@ class FrameECM:
         pts = self._outline(q, views.cameras) if outlines and tested(1, delta) else None
         for it in range(1, limit + 1):
             if coarse is not None and (binned or delta >= it_opt.coarse_delta_px * 0.9999):
-                q_new = self.iterate(q, coarse, 0.5 * delta, timings)
+                q_new = self.iterate(q, coarse, 0.5 * delta, timings, priors)
             else:
-                q_new = self.iterate(q, views, delta, timings)
+                q_new = self.iterate(q, views, delta, timings, priors)
             test = tested(it, delta)
             settled = test and self.motion.change(q, q_new) < tol
             delta_next = max(it_opt.delta_final, 0.5 * delta)

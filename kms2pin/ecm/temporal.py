@@ -9,16 +9,21 @@ Each frame ``t`` is refit by the frame's ECM (:meth:`~kms2pin.ecm.tracker.Tracke
 with one more spring in the static update (§2.3.3, eq. 2.28, a spring like eq. 2.33's on
 every coordinate; :class:`~kms2pin.ecm.priors.RestPrior`):
 
-    E_t(q) = E_masks,t(q) + ½ k |q ⊖ m_t|²,   m_t = the midpoint of q_{t-1} and q_{t+1}
+    E_t(q) = E_masks,t(q) + ½ k |q ⊖ g_t|²,   g_t = halfway from q_t to m_t,
+    m_t = the midpoint of q_{t-1} and q_{t+1}
 
-``⊖`` is ``pin.difference`` and the midpoint ``pin.interpolate`` (a free root's rotation
-on the sphere).  The first and last frames take the midpoint of themselves and their one
-neighbour.  The stiffness is the same for every coordinate: ``weight`` times the mean
-stiffness of the frame's data springs.  So a coordinate the masks fix firmly hardly
-moves, and one they hardly fix follows its neighbours.  A sweep refits every frame from
-the last sweep's poses and midpoints (a Jacobi sweep: the order of the frames does not
-matter).  Repeated sweeps spread the pull over longer stretches, like a second-difference
-prior over the recording.  The track should already hold the subject
+so the target ``g_t`` weighs the frame before, the frame itself and the frame after 1/4,
+1/2 and 1/4 (:func:`targets`).  ``⊖`` is ``pin.difference`` and each "halfway"
+``pin.interpolate`` (a free root moves along SE(3)'s screw).  The first and last frames
+take the midpoint of themselves and their one neighbour (:func:`midpoints`).  The frame's
+own pose in its target keeps a stiff spring from swinging a frame-to-frame jitter between
+the odd and the even frames from sweep to sweep, as the neighbours' midpoint alone does
+(a Jacobi sweep's highest mode; docs/design/tracking-history.md).  The stiffness is the
+same for every coordinate: ``weight`` times the mean stiffness of the frame's data
+springs.  So a coordinate the masks fix firmly hardly moves, and one they hardly fix
+follows its neighbours.  A sweep refits every frame from the last sweep's poses and
+targets (a Jacobi sweep: the order of the frames does not matter).  Repeated sweeps spread the pull over longer stretches, like a smoothness prior
+over the recording.  The track should already hold the subject
 (:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
 throughout is not found again.  It uses the frames after each frame, so it is for a
 finished recording.  Measured on real motion: docs/tracking.md, "Real motion".
@@ -35,7 +40,7 @@ import pinocchio as pin
 from .priors import RestPrior
 from .tracker import Tracker
 
-__all__ = ["SWEEPS", "WEIGHT", "Temporal", "temporal"]
+__all__ = ["SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)

@@ -67,12 +67,12 @@ def test_wide_edge_iterations_run_on_binned_masks_and_the_pose_is_recovered(monk
     seen = []
     real = FrameECM.iterate
 
-    def spy(self, q, views, delta, timings):
+    def spy(self, q, views, delta, timings, *priors):
         seen.append((delta, [c.shape for c in views.cameras], [x.dtype for x in views.masks]))
         if views.cameras[0].shape != masks[0].shape:  # each binned mask is its block fractions of the mask
             for full, binned in zip(masks, views.masks):
                 np.testing.assert_array_equal(binned, full.reshape(120, 2, 160, 2).mean(axis=(1, 3)))
-        return real(self, q, views, delta, timings)
+        return real(self, q, views, delta, timings, *priors)
 
     monkeypatch.setattr(FrameECM, "iterate", spy)
     errs = {}

@@ -171,10 +171,10 @@ def test_binned_hypotheses_track_the_alternatives_on_binned_masks():
         widths = []
         iterate = tr.ecm.iterate
 
-        def spy(q, views, delta_px, timings):
+        def spy(q, views, delta_px, timings, *priors):
             widths.append(views.cameras[0].width)
             assert views.masks[0].shape == (views.cameras[0].height, widths[-1])
-            return iterate(q, views, delta_px, timings)
+            return iterate(q, views, delta_px, timings, *priors)
 
         tr.ecm.iterate = spy
         per_frame = []

@@ -11,6 +11,7 @@ import pytest
 
 import kms2pin
 from kms2pin.ecm import Camera, Tracker, make_motion, synthesize
+from kms2pin.ecm.loop import new_timings
 from kms2pin.ecm.priors import RestPrior
 from kms2pin.ecm.temporal import SWEEPS, WEIGHT, midpoints, targets, temporal
 
@@ -147,3 +148,24 @@ def test_a_track_of_another_length_or_bad_settings_are_refused(walk):
     for bad in (-1, 1.5):
         with pytest.raises(ValueError, match="sweeps"):
             temporal(tracker, masks, truth, sweeps=bad)
+
+
+def test_a_refits_springs_are_for_that_run_only(walk):
+    """A frame refit with a stiff spring leaves the tracker as it was: the same frame's
+    ECM without it, and one iteration from the tracker, are what they were before."""
+    robot, _, truth, masks, tracker = walk
+    start = truth[4].copy()
+    start[7] += 0.2
+    before = tracker.refine(start, masks[4])
+    step = tracker.ecm.iterate(start, tracker_views(tracker, masks[4]), 1.0, new_timings())
+    pulled = tracker.refine(start, masks[4], priors=(RestPrior(10.0, robot.model, truth[0], np.arange(robot.model.nv)),))
+    assert not np.allclose(pulled[0], before[0])
+    assert np.array_equal(tracker.ecm.iterate(start, tracker_views(tracker, masks[4]), 1.0, new_timings()), step)
+    again = tracker.refine(start, masks[4])
+    assert np.array_equal(again[0], before[0]) and again[1] == before[1]
+
+
+def tracker_views(tracker, masks):
+    from kms2pin.ecm.masks import Views
+
+    return Views.of(tracker.cameras, [np.asarray(m, dtype=bool) for m in masks])
