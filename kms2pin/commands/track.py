@@ -122,13 +122,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "given) refit on each frame by ECM with a spring towards the frames beside it (its target: "
                         "1/4 the frame before, 1/2 its own pose, 1/4 the frame after), in sweeps over the "
                         "recording, so that what the masks hardly fix (a thin arm, an elbow) follows the frames "
-                        "around it (seconds to a minute for a few hundred frames; motion.bvh, animation.html and "
-                        "--smooth then use it)")
+                        "around it; each frame's ECM starts from its pose and from its target, the better fit kept "
+                        "(tens of seconds to a minute for a few hundred frames, in --jobs processes; motion.bvh, "
+                        "animation.html and --smooth then use it)")
     p.add_argument("--temporal-weight", type=non_negative, metavar="K",
                    help=f"with --temporal, the spring's stiffness, in the frame's mean data stiffness (default "
                         f"{over_time.WEIGHT:g}; 0: ECM alone)")
     p.add_argument("--temporal-sweeps", type=positive_count, metavar="N",
                    help=f"with --temporal, the sweeps over the frames (default {over_time.SWEEPS})")
+    p.add_argument("--temporal-starts", type=_starts, metavar="WHICH,...",
+                   help=f"with --temporal, where each frame's ECM starts, the best fit kept: any of "
+                        f"{', '.join(over_time.START_NAMES)} (its own pose, its target, the midpoint of the frames "
+                        f"beside it; default {','.join(over_time.STARTS)}; each start one more ECM a frame)")
     p.add_argument("--smooth", type=positive, metavar="HZ",
                    help="also write smoothed.csv, the track low-pass filtered at HZ forwards and backwards, "
                         "joint by joint (6 is usual for walking at 30 frames/s; below half of --fps), and "
@@ -137,7 +142,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=positive_count, metavar="N",
                    help="with tracks beside (--second-track), the processes that track at once: each track in one "
                         "of N, the same results (default: one per track, at most one per core this process may use; "
-                        "1: every track in this process)")
+                        "1: every track in this process); with --temporal, the processes that refit its frames "
+                        "(default: one per core this process may use)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", action=Once, required=True, metavar="OUT", help="output folder")
 
@@ -324,9 +330,10 @@ def _notes(args, robot: Robot, n_cameras: int, auto: bool) -> None:
         which = "both_ways.csv" if args.both_ways else "stretches.csv"
         print(f"note: --beside with --{'both-ways' if args.both_ways else 'stretches'}: {which} already takes the "
               "frames beside, so beside.csv is not written", file=sys.stderr)
-    if not args.temporal and (args.temporal_weight is not None or args.temporal_sweeps is not None):
-        print("note: --temporal-weight and --temporal-sweeps set the refit of --temporal; without it they do nothing",
-              file=sys.stderr)
+    if not args.temporal and any(x is not None for x in (args.temporal_weight, args.temporal_sweeps,
+                                                           args.temporal_starts)):
+        print("note: --temporal-weight, --temporal-sweeps and --temporal-starts set the refit of --temporal; without "
+              "it they do nothing", file=sys.stderr)
     if (args.calibrate_sizes is False or auto) and args.size_every is not None:
         why = "--no-size-calibration" if args.calibrate_sizes is False else "the automatic initialization (no --init POSE)"
         print(f"note: --size-every refines the measured sizes; with {why} none are measured, so it does nothing",
@@ -352,7 +359,8 @@ def _write_start(out: Path, args, robot: Robot, tracker: Tracker, frames: _Frame
         meta |= {"stretches": True, "stretches_tracks": 1 + len(tracker.tracks_beside), "stretches_switch": SWITCH,
                  "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
     if args.temporal:
-        meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args)}
+        meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args),
+                 "temporal_starts": list(_starts_of(args))}
     if args.video:
         meta |= {"videos": [str(v) for v in args.video], "segmentation": args.method,
                  "shadow_detection": not args.no_shadows, "shadow_threshold": args.shadow_threshold,
@@ -548,6 +556,23 @@ def _sweeps(args) -> int:
     return over_time.SWEEPS if args.temporal_sweeps is None else args.temporal_sweeps
 
 
+def _starts(text: str) -> tuple[str, ...]:
+    """``--temporal-starts``' value: names of :data:`kms2pin.ecm.temporal.START_NAMES`, comma-separated."""
+    names = tuple(x.strip() for x in text.split(","))
+    for x in names:
+        if x not in over_time.START_NAMES:
+            raise argparse.ArgumentTypeError(f"{x!r} is not a start: give any of {', '.join(over_time.START_NAMES)}, "
+                                             "comma-separated")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{text!r} names a start twice")
+    return names
+
+
+def _starts_of(args) -> tuple[str, ...]:
+    """``--temporal-starts``, or the refit's default."""
+    return over_time.STARTS if args.temporal_starts is None else args.temporal_starts
+
+
 def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
                      qs: np.ndarray) -> np.ndarray:
     """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
@@ -561,8 +586,9 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
         def progress(it):
             return tqdm(it, unit="frame", desc=f"over time {next(sweep)}/{_sweeps(args)}", leave=False)
     n = len(results)
+    jobs = usable_cores() if args.jobs is None else args.jobs
     tm = over_time.temporal(tracker, _Masks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
-                            sources=_frame_names(frames, n), progress=progress)
+                            starts=_starts_of(args), sources=_frame_names(frames, n), progress=progress, jobs=jobs)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
         fit = float(tm.fit[k])
@@ -572,7 +598,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                                         flags=tuple(flags)))
     with replaced(out / "temporal.csv") as tmp:
         Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
-    print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps; mean fit (IoU) "
+    print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "
+          f"({jobs} process{'es' if jobs > 1 else ''}); mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)
     return tm.q
 

@@ -22,7 +22,12 @@ the odd and the even frames from sweep to sweep, as the neighbours' midpoint alo
 same for every coordinate: ``weight`` times the mean stiffness of the frame's data
 springs.  So a coordinate the masks fix firmly hardly moves, and one they hardly fix
 follows its neighbours.  A sweep refits every frame from the last sweep's poses and
-targets (a Jacobi sweep: the order of the frames does not matter).  Repeated sweeps spread the pull over longer stretches, like a smoothness prior
+targets (a Jacobi sweep: the order of the frames does not matter, so the frames can be
+refit in several processes at once, ``jobs``).  Each frame's ECM runs from each of
+``starts`` (:data:`STARTS`): its own pose, its target, the midpoint of the frames beside;
+the end that fits the masks best is kept.  A frame whose own pose sits in a wrong basin
+(an arm a few pixels off, bent the wrong way) is refit from where the frames beside put
+it too.  Repeated sweeps spread the pull over longer stretches, like a smoothness prior
 over the recording.  The track should already hold the subject
 (:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
 throughout is not found again.  It uses the frames after each frame, so it is for a
@@ -31,6 +36,8 @@ finished recording.  Measured on real motion: docs/tracking.md, "Real motion".
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import signal
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -39,14 +46,20 @@ import pinocchio as pin
 
 from .priors import RestPrior
 from .tracker import Tracker
+from .workers import FORK
 
-__all__ = ["SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
+__all__ = ["START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
 WEIGHT = 0.01
 #: how many sweeps over the frames (docs/design/tracking-history.md)
 SWEEPS = 8
+#: where each frame's ECM may start: its own pose (the last sweep's), its target
+#: (:func:`targets`), the midpoint of the frames beside it (:func:`midpoints`)
+START_NAMES = ("pose", "target", "neighbours")
+#: where each frame's ECM starts by default (docs/design/tracking-history.md)
+STARTS = ("pose", "target")
 
 
 @dataclass(frozen=True)
@@ -74,12 +87,15 @@ def targets(model: pin.Model, q: np.ndarray) -> np.ndarray:
 
 
 def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float = WEIGHT, sweeps: int = SWEEPS,
-             sources: Sequence[str] | None = None, progress: Callable | None = None) -> Temporal:
+             starts: Sequence[str] = STARTS, sources: Sequence[str] | None = None, progress: Callable | None = None,
+             jobs: int = 1) -> Temporal:
     """The track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one mask per
     camera) refit over time (module docstring) by ``tracker`` (the one that made the
-    track, at the body sizes it ended with): ``sweeps`` sweeps, the spring ``weight``.
-    ``sources`` names each frame in error messages (default ``"frame k"``); ``progress``
-    wraps each sweep's iteration over the frames (a tqdm)."""
+    track, at the body sizes it ended with): ``sweeps`` sweeps, the spring ``weight``,
+    each frame's ECM from each of ``starts`` (names in :data:`START_NAMES`), the best fit
+    kept.  ``jobs`` processes refit a sweep's frames at once (forked, Linux only; the same
+    results as one).  ``sources`` names each frame in error messages (default
+    ``"frame k"``); ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
     q = np.array(q, dtype=float)
     n, robot = len(masks), tracker.robot
     if q.shape != (n, robot.nq):
@@ -88,17 +104,66 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
         raise ValueError(f"weight must be a finite number >= 0, not {weight!r}")
     if int(sweeps) != sweeps or sweeps < 0:
         raise ValueError(f"sweeps must be a whole number >= 0, not {sweeps!r}")
+    starts = tuple(starts)
+    if not starts or any(s not in START_NAMES for s in starts) or len(set(starts)) != len(starts):
+        raise ValueError(f"starts must name each of {', '.join(START_NAMES)} at most once, and one at least, "
+                         f"not {starts!r}")
+    if int(jobs) != jobs or jobs < 1:
+        raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
-    model, dofs = robot.model, np.arange(robot.model.nv)
-    fit = np.zeros(n)
-    for _ in range(int(sweeps)):
-        middle = targets(model, q)
-        new = q.copy()
-        frames = range(n) if progress is None else progress(range(n))
-        for t in frames:
-            prior = (RestPrior(float(weight), model, middle[t], dofs),) if weight > 0 else ()
-            new[t], fit[t] = tracker.refine(q[t], masks[t], source=names[t], priors=prior)
-        q = new
     if not sweeps:
-        fit = np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)])
+        return Temporal(q, np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)]))
+    global _SHARED
+    _SHARED = (tracker, masks, names, float(weight))
+    pool = mp.get_context("fork").Pool(int(jobs), initializer=_quiet) if FORK and jobs > 1 and n > 1 else None
+    try:
+        for _ in range(int(sweeps)):
+            q, fit = _sweep(q, starts, pool, int(jobs), progress)
+    finally:
+        _SHARED = None
+        if pool is not None:
+            pool.terminate()
+            pool.join()
     return Temporal(q, fit)
+
+
+#: the refit's tracker, masks, frame names and weight, for the frames' refits (set while
+#: :func:`temporal` runs; a forked process starts with them)
+_SHARED: tuple | None = None
+
+
+def _quiet() -> None:
+    """A refitting process ignores Ctrl-C: the process that started it handles it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _sweep(q: np.ndarray, starts: tuple[str, ...], pool, jobs: int,
+           progress: Callable | None) -> tuple[np.ndarray, np.ndarray]:
+    """One sweep: every frame refit from the last sweep's poses ``q`` (in ``pool``'s
+    processes if there is one); the new poses and their fits."""
+    model, n = _SHARED[0].robot.model, len(q)
+    middle = targets(model, q)
+    points = {"pose": q, "target": middle}
+    if "neighbours" in starts:
+        points["neighbours"] = midpoints(model, q)
+    items = [(t, np.array([points[s][t] for s in starts]), middle[t]) for t in range(n)]
+    done = map(_refit, items) if pool is None else pool.imap(_refit, items, chunksize=max(1, n // (8 * jobs)))
+    new, fit = q.copy(), np.zeros(n)
+    for t in range(n) if progress is None else progress(range(n)):
+        new[t], fit[t] = next(done)  # imap keeps the frames' order
+    return new, fit
+
+
+def _refit(item: tuple[int, np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
+    """Frame ``t``'s refit from each of its starts towards its target (the best fit kept)."""
+    t, points, target = item
+    tracker, masks, names, weight = _SHARED
+    model = tracker.robot.model
+    prior = (RestPrior(weight, model, target, np.arange(model.nv)),) if weight > 0 else ()
+    frame = masks[t]
+    best, best_fit = None, -np.inf
+    for start in points:
+        x, f = tracker.refine(start, frame, source=names[t], priors=prior)
+        if f > best_fit:
+            best, best_fit = x, f
+    return best, float(best_fit)

@@ -56,8 +56,8 @@ def test_depth_noise_follows_the_frames_beside(walk):
     noisy = truth.copy()
     noisy[:, :3] += 0.03 * robot.height * np.random.default_rng(1).standard_normal(len(truth))[:, None] * ray
     start = _along_ray(robot, cams[0], noisy, truth).mean()
-    alone = temporal(tracker, masks, noisy, weight=0.0, sweeps=SWEEPS)
-    held = temporal(tracker, masks, noisy, weight=0.3, sweeps=SWEEPS)
+    alone = temporal(tracker, masks, noisy, weight=0.0, sweeps=SWEEPS, starts=("pose",))
+    held = temporal(tracker, masks, noisy, weight=0.3, sweeps=SWEEPS, starts=("pose",))
     along_alone, along_held = (_along_ray(robot, cams[0], x.q, truth).mean() for x in (alone, held))
     assert along_alone > 0.3 * start  # the masks alone hardly see it (0.41 of it left)
     assert along_held < 0.5 * along_alone  # (0.40 of what ECM alone leaves)
@@ -94,7 +94,7 @@ def test_one_sweep_without_the_spring_is_each_frames_ecm(walk):
     robot, _, truth, masks, tracker = walk
     start = truth.copy()
     start[:, 0] += 0.01
-    out = temporal(tracker, masks, start, weight=0.0, sweeps=1)
+    out = temporal(tracker, masks, start, weight=0.0, sweeps=1, starts=("pose",))
     for k in (0, 5, len(truth) - 1):
         q, fit = tracker.refine(start[k], masks[k])
         assert np.array_equal(out.q[k], q) and out.fit[k] == fit
@@ -120,11 +120,35 @@ def test_each_frame_is_held_towards_its_neighbours_midpoint(walk):
         got = pin.XYZQUATToSE3(middle[t][:7])
         assert np.allclose(got.translation, M.translation, atol=1e-9)
         assert np.allclose(got.rotation, M.rotation, atol=1e-9)
-    out = temporal(tracker, masks, start, weight=0.5, sweeps=1)
+    out = temporal(tracker, masks, start, weight=0.5, sweeps=1, starts=("pose",))
     assert np.allclose(targets(robot.model, start)[3][7:], 0.25 * start[2][7:] + 0.5 * start[3][7:] + 0.25 * start[4][7:])
     prior = RestPrior(0.5, robot.model, targets(robot.model, start)[3], np.arange(robot.model.nv))
     q, fit = tracker.refine(start[3], masks[3], priors=(prior,))
     assert np.array_equal(out.q[3], q) and out.fit[3] == fit
+
+
+def test_each_frame_keeps_the_best_fitting_of_its_starts(walk):
+    """With several starts each frame's ECM runs from each (the frame's pose, its target,
+    its neighbours' midpoint), towards the same target, and the end that fits best is kept;
+    in two processes the same to the last bit."""
+    robot, _, truth, masks, tracker = walk
+    start = truth.copy()
+    start[1::2, 7] += 0.4  # a joint off on every other frame: the target and the neighbours' midpoint lie nearer
+    starts = ("pose", "target", "neighbours")
+    out = temporal(tracker, masks, start, weight=0.2, sweeps=1, starts=starts)
+    goal, beside = targets(robot.model, start), midpoints(robot.model, start)
+    kept = []
+    for k in range(len(start)):
+        prior = (RestPrior(0.2, robot.model, goal[k], np.arange(robot.model.nv)),)
+        ends = [tracker.refine(x, masks[k], priors=prior) for x in (start[k], goal[k], beside[k])]
+        best = int(np.argmax([f for _, f in ends]))
+        kept.append(best)
+        assert np.array_equal(out.q[k], ends[best][0]) and out.fit[k] == ends[best][1]
+    assert len(set(kept)) > 1  # not the same start on every frame
+    assert np.abs(out.q[1::2, 7] - truth[1::2, 7]).mean() < 0.5 * 0.4
+    both = temporal(tracker, masks, start, weight=0.2, sweeps=2, starts=starts, jobs=2)
+    one = temporal(tracker, masks, start, weight=0.2, sweeps=2, starts=starts, jobs=1)
+    assert np.array_equal(both.q, one.q) and np.array_equal(both.fit, one.fit)
 
 
 def test_an_empty_frame_keeps_its_pose_and_the_callers_track_is_left_as_it_was(walk):
@@ -148,6 +172,12 @@ def test_a_track_of_another_length_or_bad_settings_are_refused(walk):
     for bad in (-1, 1.5):
         with pytest.raises(ValueError, match="sweeps"):
             temporal(tracker, masks, truth, sweeps=bad)
+    for bad in ((), ("pose", "pose"), ("the truth",)):
+        with pytest.raises(ValueError, match="starts"):
+            temporal(tracker, masks, truth, starts=bad)
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="jobs"):
+            temporal(tracker, masks, truth, jobs=bad)
 
 
 def test_a_refits_springs_are_for_that_run_only(walk):
