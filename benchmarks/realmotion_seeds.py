@@ -23,8 +23,8 @@ best, then the parts (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw 
 smoothed, against the track as it was tracked, and the whole poses alone; with ``--temporal``
 the finished track (the stretches' with ``--stretches``, else the track) refit over time
 (``track --temporal``, :mod:`kms2pin.ecm.temporal`), raw and smoothed, against that track
-and its process time per frame, and against the refit from each frame's own pose alone
-(``--temporal-starts pose``, the refit of the twenty-seventh session); frames/s of
+and its process time per frame, and against the refit at the online track's body sizes
+(``--temporal-sizes-every 0``, the refit of the twenty-eighth session); frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -49,7 +49,7 @@ import realmotion as rm  # noqa: E402
 
 from kms2pin.ecm.bothways import MARGIN, beside, both_ways, choose  # noqa: E402
 from kms2pin.ecm.stretches import stretches  # noqa: E402
-from kms2pin.ecm.temporal import STARTS, temporal  # noqa: E402
+from kms2pin.ecm.temporal import SIZES_EVERY, temporal  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -113,9 +113,9 @@ def track_seed(job: tuple) -> dict:
         tm = temporal(tracker, masks, base)
         seconds = (time.process_time() - t0) / len(masks)
         t0 = time.process_time()
-        alone = temporal(tracker, masks, base, starts=("pose",))
-        row |= {"temporal_pose": scored(alone.q)[0].mean(), "temporal_pose_smoothed": smoothed(alone.q)[0].mean(),
-                "temporal_pose_ms": 1e3 * (time.process_time() - t0) / len(masks)}
+        kept = temporal(tracker, masks, base, sizes_every=0)
+        row |= {"temporal_kept": scored(kept.q)[0].mean(), "temporal_kept_smoothed": smoothed(kept.q)[0].mean(),
+                "temporal_kept_ms": 1e3 * (time.process_time() - t0) / len(masks)}
         (err_m, flex_m), (err_ms, flex_ms) = scored(tm.q), smoothed(tm.q)
         err_b = scored(base)[0]
         row |= {"temporal": err_m.mean(), "temporal_base": err_b.mean(), "temporal_smoothed": err_ms.mean(),
@@ -272,10 +272,11 @@ def _temporal(rows: list[dict]) -> str:
             f"    refit over time, smoothed: mean {sm.mean():.1f} mm, median {np.median(sm):.1f}; against the refit "
             f"{_against(sm, raw, 2)}; flexion RMSE knees {rms('knees2_temporal_smoothed'):.1f}, elbows "
             f"{rms('elbows2_temporal_smoothed'):.1f} deg\n"
-            f"    refit over time from each frame's own pose alone (--temporal-starts pose; "
-            f"{np.median(col('temporal_pose_ms')):.0f} ms a frame): mean {col('temporal_pose').mean():.1f} mm, smoothed "
-            f"{col('temporal_pose_smoothed').mean():.1f}; the refit ({', '.join(STARTS)}) against it "
-            f"{_against(raw, col('temporal_pose'), 2)}, smoothed {_against(sm, col('temporal_pose_smoothed'), 2)}")
+            f"    refit over time at the online track's body sizes (--temporal-sizes-every 0; "
+            f"{np.median(col('temporal_kept_ms')):.0f} ms a frame): mean {col('temporal_kept').mean():.1f} mm, smoothed "
+            f"{col('temporal_kept_smoothed').mean():.1f}; the refit (the sizes measured again every {SIZES_EVERY} "
+            f"sweeps) against it {_against(raw, col('temporal_kept'), 2)}, smoothed "
+            f"{_against(sm, col('temporal_kept_smoothed'), 2)}")
 
 
 def paired(base: list[dict], variant: list[dict]) -> str:

@@ -706,12 +706,13 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
                  "--temporal-sweeps", "3", "--temporal-weight", "0.05", "--temporal-starts", "neighbours,pose",
                  "--jobs", "2", "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
-    note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps from neighbours and pose \(2 processes\); "
+    note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps from neighbours and pose \(2 processes, the body sizes "
+                     r"measured again every 2 sweeps\); "
                      r"mean fit \(IoU\) (\d\.\d+)", err)
     assert note, err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["temporal"] is True and meta["temporal_weight"] == 0.05 and meta["temporal_sweeps"] == 3
-    assert meta["temporal_starts"] == ["neighbours", "pose"]
+    assert meta["temporal_starts"] == ["neighbours", "pose"] and meta["temporal_sizes_every"] == 2
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")
@@ -731,6 +732,7 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
 
 
 def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted(tmp_path, capsys):
+    from kms2pin.ecm.temporal import SIZES_EVERY as T_SIZES_EVERY
     from kms2pin.ecm.temporal import STARTS as T_STARTS
     from kms2pin.ecm.temporal import SWEEPS as T_SWEEPS
     from kms2pin.ecm.temporal import WEIGHT as T_WEIGHT
@@ -738,19 +740,23 @@ def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted
     masks = _synth(tmp_path, frames=3)
     out = tmp_path / "out"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--temporal", "-o", str(out)]) == 0
-    assert f"note: --temporal: 3 frames refit over {T_SWEEPS} sweeps from pose and target" in capsys.readouterr().err
+    assert re.search(rf"note: --temporal: 3 frames refit over {T_SWEEPS} sweeps from pose and target \(\d "
+                     rf"process(es)?, the body sizes measured again every {T_SIZES_EVERY} sweeps\)",
+                     capsys.readouterr().err)
     meta = json.loads((out / "meta.json").read_text())
     assert (meta["temporal_weight"], meta["temporal_sweeps"]) == (T_WEIGHT, T_SWEEPS) == (0.01, 8)
     assert meta["temporal_starts"] == list(T_STARTS) == ["pose", "target"]
+    assert meta["temporal_sizes_every"] == T_SIZES_EVERY == 2
     other = tmp_path / "other"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--temporal-sweeps", "2",
                  "-o", str(other)]) == 0
     err = capsys.readouterr().err
-    assert ("note: --temporal-weight, --temporal-sweeps and --temporal-starts set the refit of --temporal; without it "
-            "they do nothing") in err
+    assert ("note: --temporal-weight, --temporal-sweeps, --temporal-starts and --temporal-sizes-every set the refit "
+            "of --temporal; without it they do nothing") in err
     assert not (other / "temporal.csv").exists() and "temporal" not in json.loads((other / "meta.json").read_text())
     for bad in (["--temporal-weight", "-1"], ["--temporal-sweeps", "0"], ["--temporal-weight", "nan"],
-                ["--temporal-starts", "pose,truth"], ["--temporal-starts", "pose,pose"], ["--temporal-starts", ""]):
+                ["--temporal-starts", "pose,truth"], ["--temporal-starts", "pose,pose"], ["--temporal-starts", ""],
+                ["--temporal-sizes-every", "-1"], ["--temporal-sizes-every", "1.5"]):
         with pytest.raises(SystemExit) as exc:  # argparse's own type check
             main(["track", LOWER, "--masks", str(masks), "--temporal", *bad, "-o", str(tmp_path / "bad")])
         assert exc.value.code == 2 and bad[0] in capsys.readouterr().err

@@ -23,9 +23,9 @@ from ..ecm.secondtrack import is_part_flag, is_track_flag, part_flag, track_name
 from ..ecm.stretches import stretches
 from ..ecm.tracker import Tracker, Trajectory
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
-from ..ecm.workers import usable_cores
+from ..ecm.workers import FORK, usable_cores
 from ..robot import Robot
-from ._common import non_negative, positive_count
+from ._common import count, non_negative, positive_count
 from ._outputs import replaced
 
 if TYPE_CHECKING:
@@ -70,6 +70,10 @@ def add_offline_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"with --temporal, where each frame's ECM starts, the best fit kept: any of "
                         f"{', '.join(over_time.START_NAMES)} (its own pose, its target, the midpoint of the frames "
                         f"beside it; default {','.join(over_time.STARTS)}; each start one more ECM a frame)")
+    p.add_argument("--temporal-sizes-every", type=count, metavar="N",
+                   help=f"with --temporal, measure the body sizes again at the refit's poses (on every second "
+                        f"frame) before every N-th sweep after the first N (default {over_time.SIZES_EVERY}; 0: the "
+                        f"online track's sizes throughout)")
 
 
 def offline_notes(args, n_cameras: int) -> None:
@@ -88,9 +92,9 @@ def offline_notes(args, n_cameras: int) -> None:
         print(f"note: --beside with --{'both-ways' if args.both_ways else 'stretches'}: {which} already takes the "
               "frames beside, so beside.csv is not written", file=sys.stderr)
     if not args.temporal and any(x is not None for x in (args.temporal_weight, args.temporal_sweeps,
-                                                           args.temporal_starts)):
-        print("note: --temporal-weight, --temporal-sweeps and --temporal-starts set the refit of --temporal; without "
-              "it they do nothing", file=sys.stderr)
+                                                           args.temporal_starts, args.temporal_sizes_every)):
+        print("note: --temporal-weight, --temporal-sweeps, --temporal-starts and --temporal-sizes-every set the refit "
+              "of --temporal; without it they do nothing", file=sys.stderr)
 
 
 def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
@@ -106,7 +110,7 @@ def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
                  "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
     if args.temporal:
         meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args),
-                 "temporal_starts": list(_starts_of(args))}
+                 "temporal_starts": list(_starts_of(args)), "temporal_sizes_every": _sizes_every(args)}
     return meta
 
 
@@ -240,6 +244,11 @@ def _sweeps(args) -> int:
     return over_time.SWEEPS if args.temporal_sweeps is None else args.temporal_sweeps
 
 
+def _sizes_every(args) -> int:
+    """``--temporal-sizes-every``, or the refit's default."""
+    return over_time.SIZES_EVERY if args.temporal_sizes_every is None else args.temporal_sizes_every
+
+
 def _starts(text: str) -> tuple[str, ...]:
     """``--temporal-starts``' value: names of :data:`kms2pin.ecm.temporal.START_NAMES`, comma-separated."""
     names = tuple(x.strip() for x in text.split(","))
@@ -260,7 +269,8 @@ def _starts_of(args) -> tuple[str, ...]:
 def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
                      qs: np.ndarray) -> np.ndarray:
     """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
-    (:func:`kms2pin.ecm.temporal.temporal`, at the last frame's body sizes); returns its poses."""
+    (:func:`kms2pin.ecm.temporal.temporal`, from the last frame's body sizes, measured
+    again at its poses as it goes); returns its poses."""
     progress = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -272,7 +282,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     n = len(results)
     jobs = usable_cores() if args.jobs is None else args.jobs
     tm = over_time.temporal(tracker, FrameMasks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
-                            starts=_starts_of(args), sources=frame_names(frames, n), progress=progress, jobs=jobs)
+                            starts=_starts_of(args), sizes_every=_sizes_every(args), sources=frame_names(frames, n), progress=progress, jobs=jobs)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
         fit = float(tm.fit[k])
@@ -282,7 +292,10 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                                         flags=tuple(flags)))
     with replaced(out / "temporal.csv") as tmp:
         Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
+    procs = min(jobs, n) if FORK and n > 1 else 1  # the processes temporal forks
+    every = _sizes_every(args)
+    sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""
     print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "
-          f"({jobs} process{'es' if jobs > 1 else ''}); mean fit (IoU) "
+          f"({procs} process{'es' if procs > 1 else ''}{sizes}); mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)
     return tm.q

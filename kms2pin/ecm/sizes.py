@@ -13,7 +13,7 @@ axis no camera sees (along the viewing ray) keeps its estimate until a frame sho
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -59,6 +59,30 @@ class BodySizes:
         self.scales[i] = np.clip(scales, SCALE_MIN, SCALE_MAX)
         self.inner[i] = self.spec_inner[i] * self.scales[i]
         self.outer[i] = self.spec_outer[i] * self.scales[i]
+
+    def set_all(self, scales) -> None:
+        """Every body's semi-axis factors (n_bodies, 3), as :meth:`set_scales`."""
+        for i, sc in enumerate(np.asarray(scales, dtype=float).reshape(self.scales.shape)):
+            self.set_scales(i, sc)
+
+    def remeasured(self, frames: Iterable[tuple[EStep, np.ndarray]], delta: float) -> np.ndarray:
+        """(n_bodies, 3) the sizes from the evidence of ``frames`` alone (each an E-step at
+        the sizes in use and the configuration it is held at): every frame's fit from the
+        sizes in use, combined as :meth:`refine` combines them (module docstring), in any
+        order the same; this object is left as it was."""
+        info, rhs = np.zeros_like(self._info), np.zeros_like(self._rhs)
+        for e_step, q in frames:
+            poses, views = e_step(q, delta)
+            for i, v in enumerate(views):
+                f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+                info[i] += H
+                rhs[i] += H @ np.log(self.scales[i] * f)
+        out = self.scales.copy()
+        for i in range(len(out)):
+            lam = SIZE_PRIOR * float(np.max(np.diag(info[i])))
+            if lam > 0.0:  # a body no frame saw keeps its size
+                out[i] = np.clip(np.exp(np.linalg.solve(info[i] + lam * np.eye(3), rhs[i])), SCALE_MIN, SCALE_MAX)
+        return out
 
     def calibrate(self, e_step: EStep, q: np.ndarray, rounds: int, delta_start: float, delta_final: float) -> None:
         """Fit every body's semi-axes with the configuration held at ``q``: ``rounds`` of

@@ -24,11 +24,16 @@ springs.  So a coordinate the masks fix firmly hardly moves, and one they hardly
 follows its neighbours.  A sweep refits every frame from the last sweep's poses and
 targets (a Jacobi sweep: the order of the frames does not matter, so the frames can be
 refit in several processes at once, ``jobs``).  Each frame's ECM runs from each of
-``starts`` (:data:`STARTS`): its own pose, its target, the midpoint of the frames beside;
-the end that fits the masks best is kept.  A frame whose own pose sits in a wrong basin
+``starts``, any of its own pose, its target and the midpoint of the frames beside (by
+default :data:`STARTS`, the first two); the end that fits the masks best is kept (a tie
+to the earlier in that order).  A frame whose own pose sits in a wrong basin
 (an arm a few pixels off, bent the wrong way) is refit from where the frames beside put
-it too.  Repeated sweeps spread the pull over longer stretches, like a smoothness prior
-over the recording.  The track should already hold the subject
+it too.  Every ``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are measured
+again at the refit's poses, on every second frame its masks can drive, from the evidence
+of those frames alone (:meth:`~kms2pin.ecm.tracker.Tracker.measure_sizes`): the online
+track measured them at its own, worse poses, and an ellipsoid sized there fits the true
+pose less well.  Repeated sweeps spread the pull over longer stretches, like a
+smoothness prior over the recording.  The track should already hold the subject
 (:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
 throughout is not found again.  It uses the frames after each frame, so it is for a
 finished recording.  Measured on real motion: docs/tracking.md, "Real motion".
@@ -48,7 +53,7 @@ from .priors import RestPrior
 from .tracker import Tracker
 from .workers import FORK
 
-__all__ = ["START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
+__all__ = ["SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
@@ -60,15 +65,20 @@ SWEEPS = 8
 START_NAMES = ("pose", "target", "neighbours")
 #: where each frame's ECM starts by default (docs/design/tracking-history.md)
 STARTS = ("pose", "target")
+#: the body sizes measured again at the refit's poses before every this many sweeps
+#: after the first ones (0: the track's sizes throughout; docs/design/tracking-history.md)
+SIZES_EVERY = 2
 
 
 @dataclass(frozen=True)
 class Temporal:
-    """The refit track: ``q`` (frames, nq) and each frame's silhouette fit ``fit`` (IoU,
-    at the tracker's body sizes)."""
+    """The refit track: ``q`` (frames, nq), each frame's silhouette fit ``fit`` (IoU) and
+    the body sizes it was fit at, ``scales`` (n_bodies, 3, relative to the spec's; the
+    tracker's own unless re-measured, ``sizes_every``)."""
 
     q: np.ndarray
     fit: np.ndarray
+    scales: np.ndarray
 
 
 def midpoints(model: pin.Model, q: np.ndarray) -> np.ndarray:
@@ -87,14 +97,15 @@ def targets(model: pin.Model, q: np.ndarray) -> np.ndarray:
 
 
 def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float = WEIGHT, sweeps: int = SWEEPS,
-             starts: Sequence[str] = STARTS, sources: Sequence[str] | None = None, progress: Callable | None = None,
-             jobs: int = 1) -> Temporal:
+             starts: Sequence[str] = STARTS, sizes_every: int = SIZES_EVERY, sources: Sequence[str] | None = None,
+             progress: Callable | None = None, jobs: int = 1) -> Temporal:
     """The track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one mask per
     camera) refit over time (module docstring) by ``tracker`` (the one that made the
     track, at the body sizes it ended with): ``sweeps`` sweeps, the spring ``weight``,
     each frame's ECM from each of ``starts`` (names in :data:`START_NAMES`), the best fit
-    kept.  ``jobs`` processes refit a sweep's frames at once (forked, Linux only; the same
-    results as one).  ``sources`` names each frame in error messages (default
+    kept, the body sizes measured again every ``sizes_every`` sweeps (0: never; the
+    tracker's own are left as they were).  ``jobs`` processes refit a sweep's frames at
+    once (forked, Linux only; the same results as one).  ``sources`` names each frame in error messages (default
     ``"frame k"``); ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
     q = np.array(q, dtype=float)
     n, robot = len(masks), tracker.robot
@@ -104,27 +115,37 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
         raise ValueError(f"weight must be a finite number >= 0, not {weight!r}")
     if int(sweeps) != sweeps or sweeps < 0:
         raise ValueError(f"sweeps must be a whole number >= 0, not {sweeps!r}")
-    starts = tuple(starts)
-    if not starts or any(s not in START_NAMES for s in starts) or len(set(starts)) != len(starts):
+    given = tuple(starts)
+    if not given or any(s not in START_NAMES for s in given) or len(set(given)) != len(given):
         raise ValueError(f"starts must name each of {', '.join(START_NAMES)} at most once, and one at least, "
-                         f"not {starts!r}")
+                         f"not {given!r}")
+    starts = tuple(s for s in START_NAMES if s in given)  # a tie (an empty frame: 0 from each) to the frame's pose
+    if int(sizes_every) != sizes_every or sizes_every < 0:
+        raise ValueError(f"sizes_every must be a whole number >= 0, not {sizes_every!r}")
     if int(jobs) != jobs or jobs < 1:
         raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
+    own = tracker.scales.copy()
     if not sweeps:
-        return Temporal(q, np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)]))
+        return Temporal(q, np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)]), own)
     global _SHARED
-    _SHARED = (tracker, masks, names, float(weight))
-    pool = mp.get_context("fork").Pool(int(jobs), initializer=_quiet) if FORK and jobs > 1 and n > 1 else None
+    scales, fit, pool = own, np.zeros(n), None
     try:
-        for _ in range(int(sweeps)):
-            q, fit = _sweep(q, starts, pool, int(jobs), progress)
+        _SHARED = (tracker, masks, names, float(weight))
+        if FORK and jobs > 1 and n > 1:
+            pool = mp.get_context("fork").Pool(min(int(jobs), n), initializer=_quiet)
+        for k in range(int(sweeps)):
+            if sizes_every and k and k % int(sizes_every) == 0:
+                tracker.sizes.set_all(scales)  # measured from the sizes in use, however many processes
+                scales = tracker.measure_sizes((masks[t], q[t], names[t]) for t in range(0, n, 2) if fit[t] > 0)
+            q, fit = _sweep(q, starts, scales, pool, int(jobs), progress)
     finally:
         _SHARED = None
+        tracker.sizes.set_all(own)
         if pool is not None:
             pool.terminate()
             pool.join()
-    return Temporal(q, fit)
+    return Temporal(q, fit, scales)
 
 
 #: the refit's tracker, masks, frame names and weight, for the frames' refits (set while
@@ -133,20 +154,23 @@ _SHARED: tuple | None = None
 
 
 def _quiet() -> None:
-    """A refitting process ignores Ctrl-C: the process that started it handles it."""
+    """A refitting process ignores Ctrl-C (the process that started it handles it) and
+    ends quietly on SIGTERM (the pool's terminate; not the command line's handler, which
+    raises and would leave the pool's queue locked)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _sweep(q: np.ndarray, starts: tuple[str, ...], pool, jobs: int,
+def _sweep(q: np.ndarray, starts: tuple[str, ...], scales: np.ndarray, pool, jobs: int,
            progress: Callable | None) -> tuple[np.ndarray, np.ndarray]:
-    """One sweep: every frame refit from the last sweep's poses ``q`` (in ``pool``'s
-    processes if there is one); the new poses and their fits."""
+    """One sweep: every frame refit from the last sweep's poses ``q`` at the body sizes
+    ``scales`` (in ``pool``'s processes if there is one); the new poses and their fits."""
     model, n = _SHARED[0].robot.model, len(q)
     middle = targets(model, q)
     points = {"pose": q, "target": middle}
     if "neighbours" in starts:
         points["neighbours"] = midpoints(model, q)
-    items = [(t, np.array([points[s][t] for s in starts]), middle[t]) for t in range(n)]
+    items = [(t, np.array([points[s][t] for s in starts]), middle[t], scales) for t in range(n)]
     done = map(_refit, items) if pool is None else pool.imap(_refit, items, chunksize=max(1, n // (8 * jobs)))
     new, fit = q.copy(), np.zeros(n)
     for t in range(n) if progress is None else progress(range(n)):
@@ -154,10 +178,13 @@ def _sweep(q: np.ndarray, starts: tuple[str, ...], pool, jobs: int,
     return new, fit
 
 
-def _refit(item: tuple[int, np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
-    """Frame ``t``'s refit from each of its starts towards its target (the best fit kept)."""
-    t, points, target = item
+def _refit(item: tuple[int, np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:
+    """Frame ``t``'s refit at the body sizes ``scales`` from each of its starts towards its
+    target (the best fit kept)."""
+    t, points, target, scales = item
     tracker, masks, names, weight = _SHARED
+    if not np.array_equal(tracker.scales, scales):  # a forked process holds the sizes it was forked with
+        tracker.sizes.set_all(scales)
     model = tracker.robot.model
     prior = (RestPrior(weight, model, target, np.arange(model.nv)),) if weight > 0 else ()
     frame = masks[t]

@@ -139,6 +139,14 @@ class Tracker:
         self._beside.calibrate(masks, source, q)  # the masks as given: each checks (and cleans) them itself
         return self.scales.copy()
 
+    def measure_sizes(self, frames: Iterable[tuple[Any, np.ndarray, str]]) -> np.ndarray:
+        """(n_bodies, 3) the body sizes measured afresh (relative to the spec's) on
+        ``frames``, each (one frame's masks, the configuration held there, its name for
+        errors) (:meth:`BodySizes.remeasured`); the tracker is left as it was."""
+        clean, delta = self.options.silhouette.clean, self.options.iteration.delta_final
+        views = ((Views.of(self.cameras, check_masks(m, self.cameras, src, clean)), q) for m, q, src in frames)
+        return self.sizes.remeasured(((self._e_step_on(v), np.asarray(q, dtype=float)) for v, q in views), delta)
+
     def _calibrate(self, views: Views, q: np.ndarray) -> None:
         it = self.options.iteration
         self.sizes.calibrate(self._e_step_on(views), q, self.options.sizes.size_iterations, it.delta_start,

@@ -56,8 +56,8 @@ def test_depth_noise_follows_the_frames_beside(walk):
     noisy = truth.copy()
     noisy[:, :3] += 0.03 * robot.height * np.random.default_rng(1).standard_normal(len(truth))[:, None] * ray
     start = _along_ray(robot, cams[0], noisy, truth).mean()
-    alone = temporal(tracker, masks, noisy, weight=0.0, sweeps=SWEEPS, starts=("pose",))
-    held = temporal(tracker, masks, noisy, weight=0.3, sweeps=SWEEPS, starts=("pose",))
+    alone = temporal(tracker, masks, noisy, weight=0.0, sweeps=SWEEPS, starts=("pose",), sizes_every=0)
+    held = temporal(tracker, masks, noisy, weight=0.3, sweeps=SWEEPS, starts=("pose",), sizes_every=0)
     along_alone, along_held = (_along_ray(robot, cams[0], x.q, truth).mean() for x in (alone, held))
     assert along_alone > 0.3 * start  # the masks alone hardly see it (0.41 of it left)
     assert along_held < 0.5 * along_alone  # (0.40 of what ECM alone leaves)
@@ -151,6 +151,32 @@ def test_each_frame_keeps_the_best_fitting_of_its_starts(walk):
     assert np.array_equal(both.q, one.q) and np.array_equal(both.fit, one.fit)
 
 
+def test_the_body_sizes_are_measured_again_at_the_refits_poses(walk):
+    """A tracker 20 % too large on every semi-axis (the masks are of the spec's sizes): the
+    refit measures them again at its poses, every sizes_every sweeps, and ends nearer the
+    spec's (1) on the bodies it sees, its fits at those sizes; the tracker keeps its own;
+    without the measuring, its own throughout; in two processes the same to the last bit."""
+    robot, cams, truth, masks, _ = walk
+    big = np.full((len(robot.bodies), 3), 1.2)
+    tracker = Tracker(robot, cams, q0=truth[0], scales=big, calibrate_sizes=False)
+    out = temporal(tracker, masks, truth, weight=WEIGHT, sweeps=3, sizes_every=1, starts=("pose",))
+    assert np.array_equal(tracker.scales, big)
+    assert np.median(np.abs(np.log(out.scales))) < 0.5 * np.log(1.2)
+    sized = Tracker(robot, cams, q0=truth[0], scales=out.scales, calibrate_sizes=False)
+    assert np.allclose(out.fit, [sized.fit(x, m) for x, m in zip(out.q, masks)])
+    assert out.fit.mean() > np.mean([tracker.fit(x, m) for x, m in zip(truth, masks)])
+    kept = temporal(tracker, masks, truth, weight=WEIGHT, sweeps=3, sizes_every=0, starts=("pose",))
+    assert np.array_equal(kept.scales, big)
+    assert np.allclose(kept.fit, [tracker.fit(x, m) for x, m in zip(kept.q, masks)])
+    frames = [(masks[k], truth[k], f"frame {k}") for k in range(0, len(truth), 2)]
+    measured = tracker.measure_sizes(frames)
+    assert np.allclose(tracker.measure_sizes(frames[::-1]), measured, rtol=1e-9)  # each frame fit from the same sizes
+    assert np.array_equal(tracker.scales, big) and np.median(np.abs(np.log(measured))) < 0.5 * np.log(1.2)
+    both = temporal(tracker, masks, truth, weight=WEIGHT, sweeps=3, sizes_every=1, starts=("pose",), jobs=2)
+    assert np.array_equal(both.q, out.q) and np.array_equal(both.scales, out.scales)
+    assert np.array_equal(both.fit, out.fit)
+
+
 def test_an_empty_frame_keeps_its_pose_and_the_callers_track_is_left_as_it_was(walk):
     robot, _, truth, masks, tracker = walk
     frames = [list(m) for m in masks[:5]]
@@ -160,6 +186,25 @@ def test_an_empty_frame_keeps_its_pose_and_the_callers_track_is_left_as_it_was(w
     out = temporal(tracker, frames, start, weight=WEIGHT, sweeps=2)
     assert np.array_equal(start, before)
     assert np.array_equal(out.q[2], start[2]) and out.fit[2] == 0.0
+    other = temporal(tracker, frames, start, weight=WEIGHT, sweeps=2, starts=("neighbours", "target", "pose"))
+    assert np.array_equal(other.q[2], start[2])  # the tie (0 from every start) to its own pose, in any order given
+
+
+def test_frames_the_masks_cannot_drive_do_not_measure_the_sizes(walk):
+    """An empty frame and a full one among the frames the sizes are measured on: the sizes
+    come from the others (a full mask measured would blow every body up to its bound)."""
+    robot, _, truth, masks, tracker = walk
+    frames = [list(m) for m in masks[:6]]
+    frames[2] = [np.zeros_like(m) for m in frames[2]]
+    frames[4] = [np.ones_like(m) for m in frames[4]]
+    out = temporal(tracker, frames, truth[:6], sweeps=3, sizes_every=1)
+    good = [0, 1, 3, 5]
+    assert out.fit[2] == 0.0 and out.fit[4] == 0.0
+    from kms2pin.ecm.sizes import SCALE_MAX
+
+    assert np.mean(np.isclose(out.scales, SCALE_MAX)) < 0.2  # (measured on the full mask: 0.5 of them)
+    kept = temporal(tracker, frames, truth[:6], sweeps=3, sizes_every=0)
+    assert out.fit[good].mean() > kept.fit[good].mean() - 0.01
 
 
 def test_a_track_of_another_length_or_bad_settings_are_refused(walk):
@@ -175,6 +220,9 @@ def test_a_track_of_another_length_or_bad_settings_are_refused(walk):
     for bad in ((), ("pose", "pose"), ("the truth",)):
         with pytest.raises(ValueError, match="starts"):
             temporal(tracker, masks, truth, starts=bad)
+    for bad in (-1, 1.5):
+        with pytest.raises(ValueError, match="sizes_every"):
+            temporal(tracker, masks, truth, sizes_every=bad)
     for bad in (0, 1.5):
         with pytest.raises(ValueError, match="jobs"):
             temporal(tracker, masks, truth, jobs=bad)
