@@ -706,9 +706,8 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
                  "--temporal-sweeps", "3", "--temporal-weight", "0.05", "--temporal-starts", "neighbours,pose",
                  "--jobs", "2", "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
-    note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps from neighbours and pose \(2 processes, the body sizes "
-                     r"measured again every 2 sweeps\); "
-                     r"mean fit \(IoU\) (\d\.\d+)", err)
+    note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps from neighbours and pose \(2 processes, "
+                     r"the body sizes measured again every 2 sweeps\); mean fit \(IoU\) (\d\.\d+)", err)
     assert note, err
     meta = json.loads((out / "meta.json").read_text())
     assert meta["temporal"] is True and meta["temporal_weight"] == 0.05 and meta["temporal_sweeps"] == 3

@@ -23,7 +23,7 @@ from ..ecm.secondtrack import is_part_flag, is_track_flag, part_flag, track_name
 from ..ecm.stretches import stretches
 from ..ecm.tracker import Tracker, Trajectory
 from ..ecm.trajectory import POOR_FIT, poor_fit_flag
-from ..ecm.workers import FORK, usable_cores
+from ..ecm.workers import usable_cores
 from ..robot import Robot
 from ._common import count, non_negative, positive_count
 from ._outputs import replaced
@@ -282,7 +282,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     n = len(results)
     jobs = usable_cores() if args.jobs is None else args.jobs
     tm = over_time.temporal(tracker, FrameMasks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
-                            starts=_starts_of(args), sizes_every=_sizes_every(args), sources=frame_names(frames, n), progress=progress, jobs=jobs)
+                            starts=_starts_of(args), sizes_every=_sizes_every(args), sources=frame_names(frames, n),
+                            progress=progress, jobs=jobs)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
         fit = float(tm.fit[k])
@@ -292,7 +293,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                                         flags=tuple(flags)))
     with replaced(out / "temporal.csv") as tmp:
         Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
-    procs = min(jobs, n) if FORK and n > 1 else 1  # the processes temporal forks
+    procs = over_time.processes(jobs, n)
     every = _sizes_every(args)
     sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""
     print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "

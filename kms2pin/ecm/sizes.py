@@ -74,14 +74,14 @@ class BodySizes:
         for e_step, q in frames:
             poses, views = e_step(q, delta)
             for i, v in enumerate(views):
-                f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+                H, r = self._evidence(i, v, poses[i])
                 info[i] += H
-                rhs[i] += H @ np.log(self.scales[i] * f)
+                rhs[i] += r
         out = self.scales.copy()
         for i in range(len(out)):
-            lam = SIZE_PRIOR * float(np.max(np.diag(info[i])))
-            if lam > 0.0:  # a body no frame saw keeps its size
-                out[i] = np.clip(np.exp(np.linalg.solve(info[i] + lam * np.eye(3), rhs[i])), SCALE_MIN, SCALE_MAX)
+            x = _pooled(info[i], rhs[i])
+            if x is not None:  # a body no frame saw keeps its size
+                out[i] = np.clip(np.exp(x), SCALE_MIN, SCALE_MAX)
         return out
 
     def calibrate(self, e_step: EStep, q: np.ndarray, rounds: int, delta_start: float, delta_final: float) -> None:
@@ -104,11 +104,22 @@ class BodySizes:
         sizes (module docstring)."""
         poses, views = e_step(q, delta)
         for i, v in enumerate(views):
-            f, H = fit_body_scale(v, poses[i], self.inner[i], iterations=2)
+            H, r = self._evidence(i, v, poses[i])
             self._info[i] += H
-            self._rhs[i] += H @ np.log(self.scales[i] * f)
-            info = self._info[i]
-            lam = SIZE_PRIOR * float(np.max(np.diag(info)))
-            if lam <= 0.0:  # nothing seen of this body yet
-                continue
-            self.set_scales(i, np.exp(np.linalg.solve(info + lam * np.eye(3), self._rhs[i])))
+            self._rhs[i] += r
+            x = _pooled(self._info[i], self._rhs[i])
+            if x is not None:  # something seen of this body
+                self.set_scales(i, np.exp(x))
+
+    def _evidence(self, i: int, view, pose) -> tuple[np.ndarray, np.ndarray]:
+        """Body ``i``'s size fit on one frame's ``view`` from the sizes in use: the terms
+        (H, H x) that :meth:`refine` and :meth:`remeasured` sum (``x`` its log-scales)."""
+        f, H = fit_body_scale(view, pose, self.inner[i], iterations=2)
+        return H, H @ np.log(self.scales[i] * f)
+
+
+def _pooled(info: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+    """The log-scales of one body's summed evidence, pulled towards the spec's by
+    :data:`SIZE_PRIOR` of its largest information (module docstring); None if it has none."""
+    lam = SIZE_PRIOR * float(np.max(np.diag(info)))
+    return None if lam <= 0.0 else np.linalg.solve(info + lam * np.eye(3), rhs)

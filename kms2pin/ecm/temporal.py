@@ -53,7 +53,8 @@ from .priors import RestPrior
 from .tracker import Tracker
 from .workers import FORK
 
-__all__ = ["SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "targets", "temporal"]
+__all__ = ["SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes", "targets",
+           "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
@@ -132,8 +133,8 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     scales, fit, pool = own, np.zeros(n), None
     try:
         _SHARED = (tracker, masks, names, float(weight))
-        if FORK and jobs > 1 and n > 1:
-            pool = mp.get_context("fork").Pool(min(int(jobs), n), initializer=_quiet)
+        if processes(jobs, n) > 1:
+            pool = mp.get_context("fork").Pool(processes(jobs, n), initializer=_quiet)
         for k in range(int(sweeps)):
             if sizes_every and k and k % int(sizes_every) == 0:
                 tracker.sizes.set_all(scales)  # measured from the sizes in use, however many processes
@@ -146,6 +147,12 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
             pool.terminate()
             pool.join()
     return Temporal(q, fit, scales)
+
+
+def processes(jobs: int, n: int) -> int:
+    """How many processes :func:`temporal` refits ``n`` frames in when given ``jobs``
+    (one where it cannot fork)."""
+    return min(int(jobs), n) if FORK and n > 1 else 1
 
 
 #: the refit's tracker, masks, frame names and weight, for the frames' refits (set while
