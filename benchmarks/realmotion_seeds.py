@@ -23,8 +23,8 @@ best, then the parts (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw 
 smoothed, against the track as it was tracked, and the whole poses alone; with ``--temporal``
 the finished track (the stretches' with ``--stretches``, else the track) refit over time
 (``track --temporal``, :mod:`kms2pin.ecm.temporal`), raw and smoothed, against that track
-and its process time per frame, and against the refit at the online track's body sizes
-(``--temporal-sizes-every 0``, the refit of the twenty-eighth session); frames/s of
+and its process time per frame, and against the refit without the limbs searched again
+(``--temporal-sweeps 8 --temporal-searches none``, the refit of the twenty-ninth session); frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -49,7 +49,7 @@ import realmotion as rm  # noqa: E402
 
 from kms2pin.ecm.bothways import MARGIN, beside, both_ways, choose  # noqa: E402
 from kms2pin.ecm.stretches import stretches  # noqa: E402
-from kms2pin.ecm.temporal import SIZES_EVERY, temporal  # noqa: E402
+from kms2pin.ecm.temporal import SEARCHES, SWEEPS, temporal  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
@@ -113,7 +113,7 @@ def track_seed(job: tuple) -> dict:
         tm = temporal(tracker, masks, base)
         seconds = (time.process_time() - t0) / len(masks)
         t0 = time.process_time()
-        kept = temporal(tracker, masks, base, sizes_every=0)
+        kept = temporal(tracker, masks, base, sweeps=8, searches=())  # the refit before the searches
         row |= {"temporal_kept": scored(kept.q)[0].mean(), "temporal_kept_smoothed": smoothed(kept.q)[0].mean(),
                 "temporal_kept_ms": 1e3 * (time.process_time() - t0) / len(masks)}
         (err_m, flex_m), (err_ms, flex_ms) = scored(tm.q), smoothed(tm.q)
@@ -272,10 +272,11 @@ def _temporal(rows: list[dict]) -> str:
             f"    refit over time, smoothed: mean {sm.mean():.1f} mm, median {np.median(sm):.1f}; against the refit "
             f"{_against(sm, raw, 2)}; flexion RMSE knees {rms('knees2_temporal_smoothed'):.1f}, elbows "
             f"{rms('elbows2_temporal_smoothed'):.1f} deg\n"
-            f"    refit over time at the online track's body sizes (--temporal-sizes-every 0; "
+            f"    refit over time without the limbs searched again, 8 sweeps (--temporal-sweeps 8 --temporal-searches "
+            f"none; "
             f"{np.median(col('temporal_kept_ms')):.0f} ms a frame): mean {col('temporal_kept').mean():.1f} mm, smoothed "
-            f"{col('temporal_kept_smoothed').mean():.1f}; the refit (the sizes measured again every {SIZES_EVERY} "
-            f"sweeps) against it {_against(raw, col('temporal_kept'), 2)}, smoothed "
+            f"{col('temporal_kept_smoothed').mean():.1f}; the refit ({SWEEPS} sweeps, the limbs searched again before "
+            f"sweeps {', '.join(map(str, SEARCHES))}) against it {_against(raw, col('temporal_kept'), 2)}, smoothed "
             f"{_against(sm, col('temporal_kept_smoothed'), 2)}")
 
 

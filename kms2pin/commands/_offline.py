@@ -74,6 +74,11 @@ def add_offline_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"with --temporal, measure the body sizes again at the refit's poses (on every second "
                         f"frame) before every N-th sweep after the first N (default {over_time.SIZES_EVERY}; 0: the "
                         f"online track's sizes throughout)")
+    p.add_argument("--temporal-searches", type=_searches, metavar="K,...",
+                   help=f"with --temporal, before each of these sweeps (counted from 0) search every frame's limbs "
+                        f"again from its pose by the reach search (--reach-search; a lost or missed limb, and the "
+                        f"arms with --reach-always arms) (default {','.join(map(str, over_time.SEARCHES))}; none: "
+                        f"no search; each search costs about as much as 4 sweeps)")
 
 
 def offline_notes(args, n_cameras: int) -> None:
@@ -92,9 +97,10 @@ def offline_notes(args, n_cameras: int) -> None:
         print(f"note: --beside with --{'both-ways' if args.both_ways else 'stretches'}: {which} already takes the "
               "frames beside, so beside.csv is not written", file=sys.stderr)
     if not args.temporal and any(x is not None for x in (args.temporal_weight, args.temporal_sweeps,
-                                                           args.temporal_starts, args.temporal_sizes_every)):
-        print("note: --temporal-weight, --temporal-sweeps, --temporal-starts and --temporal-sizes-every set the refit "
-              "of --temporal; without it they do nothing", file=sys.stderr)
+                                                           args.temporal_starts, args.temporal_sizes_every,
+                                                           args.temporal_searches)):
+        print("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every and "
+              "--temporal-searches set the refit of --temporal; without it they do nothing", file=sys.stderr)
 
 
 def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
@@ -110,7 +116,8 @@ def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
                  "stretches_tolerance": TOLERANCE, "stretches_parts": list(parts(robot)), "stretches_sweeps": SWEEPS}
     if args.temporal:
         meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args),
-                 "temporal_starts": list(_starts_of(args)), "temporal_sizes_every": _sizes_every(args)}
+                 "temporal_starts": list(_starts_of(args)), "temporal_sizes_every": _sizes_every(args),
+                 "temporal_searches": list(_searches_of(args))}
     return meta
 
 
@@ -249,6 +256,28 @@ def _sizes_every(args) -> int:
     return over_time.SIZES_EVERY if args.temporal_sizes_every is None else args.temporal_sizes_every
 
 
+def _searches(text: str) -> tuple[int, ...]:
+    """``--temporal-searches``' value: sweeps' numbers (whole, >= 0), comma-separated, or ``none``."""
+    if text.strip().lower() == "none":
+        return ()
+    out = []
+    for x in text.split(","):
+        try:
+            k = int(x.strip())
+        except ValueError:
+            k = -1
+        if k < 0:
+            raise argparse.ArgumentTypeError(f"{x.strip()!r} is not a sweep's number: give whole numbers >= 0, "
+                                             "comma-separated, or none")
+        out.append(k)
+    return tuple(sorted(set(out)))
+
+
+def _searches_of(args) -> tuple[int, ...]:
+    """``--temporal-searches``, or the refit's default."""
+    return over_time.SEARCHES if args.temporal_searches is None else args.temporal_searches
+
+
 def _starts(text: str) -> tuple[str, ...]:
     """``--temporal-starts``' value: names of :data:`kms2pin.ecm.temporal.START_NAMES`, comma-separated."""
     names = tuple(x.strip() for x in text.split(","))
@@ -282,7 +311,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     n = len(results)
     jobs = usable_cores() if args.jobs is None else args.jobs
     tm = over_time.temporal(tracker, FrameMasks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
-                            starts=_starts_of(args), sizes_every=_sizes_every(args), sources=frame_names(frames, n),
+                            starts=_starts_of(args), sizes_every=_sizes_every(args), searches=_searches_of(args),
+                            sources=frame_names(frames, n),
                             progress=progress, jobs=jobs)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from
@@ -296,6 +326,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     procs = over_time.processes(jobs, n)
     every = _sizes_every(args)
     sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""
+    at = [k for k in _searches_of(args) if k < _sweeps(args)] if tracker.reach is not None else []
+    sizes += f", the limbs searched again before sweep{'s' if len(at) > 1 else ''} {', '.join(map(str, at))}" if at else ""
     print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "
           f"({procs} process{'es' if procs > 1 else ''}{sizes}); mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)

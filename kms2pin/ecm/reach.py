@@ -393,6 +393,17 @@ class ReachSearch:
         found = lost + [k for k in self.missed(q, views) if k not in lost]
         return [i for i in found + [k for k in self.always if k not in found] if i not in tried]
 
+    def search_once(self, q: np.ndarray, fit: float, views: Views, binned: Views | None, coarse: Views | None,
+                    timings: dict) -> tuple[np.ndarray, float, list[LimbMove]]:
+        """:meth:`search` on one frame by itself: no body rests after an earlier search
+        (``rest``), and the sequence's record of the searches is left as it was."""
+        saved = self._searches, self._failed
+        self.forget()
+        try:
+            return self.search(q, fit, views, binned, coarse, timings)
+        finally:
+            self._searches, self._failed = saved
+
     def search(self, q: np.ndarray, fit: float, views: Views, binned: Views | None, coarse: Views | None,
                timings: dict) -> tuple[np.ndarray, float, list[LimbMove]]:
         """Re-aim every topmost lost body and missed limb of ``q`` (its ``fit``), each once,

@@ -32,7 +32,11 @@ it too.  Every ``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are m
 again at the refit's poses, on every second frame its masks can drive, from the evidence
 of those frames alone (:meth:`~kms2pin.ecm.tracker.Tracker.measure_sizes`): the online
 track measured them at its own, worse poses, and an ellipsoid sized there fits the true
-pose less well.  Repeated sweeps spread the pull over longer stretches, like a
+pose less well.  Before each sweep of ``searches`` (:data:`SEARCHES`) every frame's limbs
+are searched again from its pose, on its masks alone, by the tracker's reach search
+(:meth:`~kms2pin.ecm.tracker.Tracker.reach_limbs`; nothing without ``reach_search``): an
+arm held in a wrong basin by the frames beside, which ECM does not leave, is re-aimed at
+the masks, and the sweeps after it carry the move to the frames around.  Repeated sweeps spread the pull over longer stretches, like a
 smoothness prior over the recording.  The track should already hold the subject
 (:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
 throughout is not found again.  It uses the frames after each frame, so it is for a
@@ -53,14 +57,17 @@ from .priors import RestPrior
 from .tracker import Tracker
 from .workers import FORK
 
-__all__ = ["SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes", "targets",
+__all__ = ["SEARCHES", "SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes", "targets",
            "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
 WEIGHT = 0.01
 #: how many sweeps over the frames (docs/design/tracking-history.md)
-SWEEPS = 8
+SWEEPS = 12
+#: the sweeps (counted from 0) before which every frame's limbs are searched again by the
+#: reach search (docs/design/tracking-history.md)
+SEARCHES = (4, 8)
 #: where each frame's ECM may start: its own pose (the last sweep's), its target
 #: (:func:`targets`), the midpoint of the frames beside it (:func:`midpoints`)
 START_NAMES = ("pose", "target", "neighbours")
@@ -98,14 +105,16 @@ def targets(model: pin.Model, q: np.ndarray) -> np.ndarray:
 
 
 def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float = WEIGHT, sweeps: int = SWEEPS,
-             starts: Sequence[str] = STARTS, sizes_every: int = SIZES_EVERY, sources: Sequence[str] | None = None,
+             starts: Sequence[str] = STARTS, sizes_every: int = SIZES_EVERY, searches: Sequence[int] = SEARCHES,
+             sources: Sequence[str] | None = None,
              progress: Callable | None = None, jobs: int = 1) -> Temporal:
     """The track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one mask per
     camera) refit over time (module docstring) by ``tracker`` (the one that made the
     track, at the body sizes it ended with): ``sweeps`` sweeps, the spring ``weight``,
     each frame's ECM from each of ``starts`` (names in :data:`START_NAMES`), the best fit
     kept, the body sizes measured again every ``sizes_every`` sweeps (0: never; the
-    tracker's own are left as they were).  ``jobs`` processes refit a sweep's frames at
+    tracker's own are left as they were), every frame's limbs searched again before each
+    sweep of ``searches`` (counted from 0; sweeps past the last are ignored).  ``jobs`` processes refit a sweep's frames at
     once (forked, Linux only; the same results as one).  ``sources`` names each frame in error messages (default
     ``"frame k"``); ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
     q = np.array(q, dtype=float)
@@ -123,6 +132,10 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     starts = tuple(s for s in START_NAMES if s in given)  # a tie (an empty frame: 0 from each) to the frame's pose
     if int(sizes_every) != sizes_every or sizes_every < 0:
         raise ValueError(f"sizes_every must be a whole number >= 0, not {sizes_every!r}")
+    searches = tuple(searches)
+    if any(isinstance(k, bool) or int(k) != k or k < 0 for k in searches):
+        raise ValueError(f"searches must be sweeps' numbers, whole numbers >= 0, not {searches!r}")
+    searched = {int(k) for k in searches}
     if int(jobs) != jobs or jobs < 1:
         raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
@@ -139,6 +152,8 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
             if sizes_every and k and k % int(sizes_every) == 0:
                 tracker.sizes.set_all(scales)  # measured from the sizes in use, however many processes
                 scales = tracker.measure_sizes((masks[t], q[t], names[t]) for t in range(0, n, 2) if fit[t] > 0)
+            if k in searched and tracker.reach is not None:
+                q = _searched(q, scales, pool, int(jobs))
             q, fit = _sweep(q, starts, scales, pool, int(jobs), progress)
     finally:
         _SHARED = None
@@ -183,6 +198,25 @@ def _sweep(q: np.ndarray, starts: tuple[str, ...], scales: np.ndarray, pool, job
     for t in range(n) if progress is None else progress(range(n)):
         new[t], fit[t] = next(done)  # imap keeps the frames' order
     return new, fit
+
+
+def _searched(q: np.ndarray, scales: np.ndarray, pool, jobs: int) -> np.ndarray:
+    """Every frame's limbs searched again from its pose ``q[t]`` at the body sizes
+    ``scales`` (:meth:`~kms2pin.ecm.tracker.Tracker.reach_limbs`; in ``pool``'s processes
+    if there is one)."""
+    n = len(q)
+    items = [(t, q[t], scales) for t in range(n)]
+    done = map(_reach, items) if pool is None else pool.imap(_reach, items, chunksize=max(1, n // (8 * jobs)))
+    return np.array(list(done))
+
+
+def _reach(item: tuple[int, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Frame ``t``'s limbs searched again from ``q`` at the body sizes ``scales``."""
+    t, q, scales = item
+    tracker, masks, names, _ = _SHARED
+    if not np.array_equal(tracker.scales, scales):
+        tracker.sizes.set_all(scales)
+    return tracker.reach_limbs(q, masks[t], names[t])[0]
 
 
 def _refit(item: tuple[int, np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, float]:

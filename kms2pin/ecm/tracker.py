@@ -387,6 +387,22 @@ class Tracker:
         return self.limbs.search(q0, self.ecm.fit(q0, views), views, views.binned(self._binned),
                                  self._coarse(views), timings)
 
+    def reach_limbs(self, q: np.ndarray, masks, source: str = "frame") -> tuple[np.ndarray, float, int]:
+        """The reach search (:mod:`~kms2pin.ecm.reach`) on one frame from ``q`` as it is (no
+        ECM before it, no prediction, no rest after earlier searches), leaving the tracker as
+        it was.  Returns the configuration, its fit (IoU) and the moves kept (0 without
+        ``reach_search``, or where no mask can drive the pose)."""
+        q = np.array(q, dtype=float)
+        views = Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean)).seeing()
+        if not len(views):
+            return q, 0.0, 0
+        fit = self.ecm.fit(q, views)
+        if self.reach is None:
+            return q, fit, 0
+        q, fit, moves = self.reach.search_once(q, fit, views, views.binned(self._binned), self._coarse(views),
+                                               new_timings())
+        return q, fit, len(moves)
+
     # ------------------------------------------------------------------ sequences
     def restart(self, q0: np.ndarray) -> None:
         """Go on from ``q0`` as from a first frame's pose (no velocity, no alternative
