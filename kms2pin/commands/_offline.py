@@ -327,7 +327,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     every = _sizes_every(args)
     sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""
     at = [k for k in _searches_of(args) if k < _sweeps(args)] if tracker.reach is not None else []
-    sizes += f", the limbs searched again before sweep{'s' if len(at) > 1 else ''} {', '.join(map(str, at))}" if at else ""
+    if at:
+        sizes += f", the limbs searched again before sweep{'s' if len(at) > 1 else ''} {', '.join(map(str, at))}"
     print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "
           f"({procs} process{'es' if procs > 1 else ''}{sizes}); mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)

@@ -36,11 +36,12 @@ pose less well.  Before each sweep of ``searches`` (:data:`SEARCHES`) every fram
 are searched again from its pose, on its masks alone, by the tracker's reach search
 (:meth:`~kms2pin.ecm.tracker.Tracker.reach_limbs`; nothing without ``reach_search``): an
 arm held in a wrong basin by the frames beside, which ECM does not leave, is re-aimed at
-the masks, and the sweeps after it carry the move to the frames around.  Repeated sweeps spread the pull over longer stretches, like a
-smoothness prior over the recording.  The track should already hold the subject
-(:mod:`~kms2pin.ecm.stretches`, :mod:`~kms2pin.ecm.bothways`): a stretch lost
-throughout is not found again.  It uses the frames after each frame, so it is for a
-finished recording.  Measured on real motion: docs/tracking.md, "Real motion".
+the masks, and the sweeps after it carry the move to the frames around.  Repeated sweeps
+spread the pull over longer stretches, like a smoothness prior over the recording.  The
+track should already hold the subject (:mod:`~kms2pin.ecm.stretches`,
+:mod:`~kms2pin.ecm.bothways`): a stretch lost throughout is not found again.  It uses the
+frames after each frame, so it is for a finished recording.  Measured on real motion:
+docs/tracking.md, "Real motion".
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ from .priors import RestPrior
 from .tracker import Tracker
 from .workers import FORK
 
-__all__ = ["SEARCHES", "SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes", "targets",
-           "temporal"]
+__all__ = ["SEARCHES", "SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes",
+           "targets", "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
