@@ -115,9 +115,10 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     each frame's ECM from each of ``starts`` (names in :data:`START_NAMES`), the best fit
     kept, the body sizes measured again every ``sizes_every`` sweeps (0: never; the
     tracker's own are left as they were), every frame's limbs searched again before each
-    sweep of ``searches`` (counted from 0; sweeps past the last are ignored).  ``jobs`` processes refit a sweep's frames at
-    once (forked, Linux only; the same results as one).  ``sources`` names each frame in error messages (default
-    ``"frame k"``); ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
+    sweep of ``searches`` (counted from 0; sweeps past the last are ignored).  ``jobs``
+    processes refit a sweep's frames at once (forked, Linux only; the same results as
+    one).  ``sources`` names each frame in error messages (default ``"frame k"``);
+    ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
     q = np.array(q, dtype=float)
     n, robot = len(masks), tracker.robot
     if q.shape != (n, robot.nq):
@@ -194,7 +195,7 @@ def _sweep(q: np.ndarray, starts: tuple[str, ...], scales: np.ndarray, pool, job
     if "neighbours" in starts:
         points["neighbours"] = midpoints(model, q)
     items = [(t, np.array([points[s][t] for s in starts]), middle[t], scales) for t in range(n)]
-    done = map(_refit, items) if pool is None else pool.imap(_refit, items, chunksize=max(1, n // (8 * jobs)))
+    done = _each(_refit, items, pool, jobs)
     new, fit = q.copy(), np.zeros(n)
     for t in range(n) if progress is None else progress(range(n)):
         new[t], fit[t] = next(done)  # imap keeps the frames' order
@@ -205,18 +206,26 @@ def _searched(q: np.ndarray, scales: np.ndarray, pool, jobs: int) -> np.ndarray:
     """Every frame's limbs searched again from its pose ``q[t]`` at the body sizes
     ``scales`` (:meth:`~kms2pin.ecm.tracker.Tracker.reach_limbs`; in ``pool``'s processes
     if there is one)."""
-    n = len(q)
-    items = [(t, q[t], scales) for t in range(n)]
-    done = map(_reach, items) if pool is None else pool.imap(_reach, items, chunksize=max(1, n // (8 * jobs)))
-    return np.array(list(done))
+    return np.array(list(_each(_reach, [(t, q[t], scales) for t in range(len(q))], pool, jobs)))
+
+
+def _each(fn: Callable, items: list, pool, jobs: int):
+    """``fn`` of each of ``items``, in order (in ``pool``'s processes if there is one)."""
+    return map(fn, items) if pool is None else pool.imap(fn, items, chunksize=max(1, len(items) // (8 * jobs)))
+
+
+def _shared_at(scales: np.ndarray) -> tuple:
+    """:data:`_SHARED`, its tracker at the body sizes ``scales`` (a forked process holds the
+    sizes it was forked with)."""
+    if not np.array_equal(_SHARED[0].scales, scales):
+        _SHARED[0].sizes.set_all(scales)
+    return _SHARED
 
 
 def _reach(item: tuple[int, np.ndarray, np.ndarray]) -> np.ndarray:
     """Frame ``t``'s limbs searched again from ``q`` at the body sizes ``scales``."""
     t, q, scales = item
-    tracker, masks, names, _ = _SHARED
-    if not np.array_equal(tracker.scales, scales):
-        tracker.sizes.set_all(scales)
+    tracker, masks, names, _ = _shared_at(scales)
     return tracker.reach_limbs(q, masks[t], names[t])[0]
 
 
@@ -224,9 +233,7 @@ def _refit(item: tuple[int, np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.nda
     """Frame ``t``'s refit at the body sizes ``scales`` from each of its starts towards its
     target (the best fit kept)."""
     t, points, target, scales = item
-    tracker, masks, names, weight = _SHARED
-    if not np.array_equal(tracker.scales, scales):  # a forked process holds the sizes it was forked with
-        tracker.sizes.set_all(scales)
+    tracker, masks, names, weight = _shared_at(scales)
     model = tracker.robot.model
     prior = (RestPrior(weight, model, target, np.arange(model.nv)),) if weight > 0 else ()
     frame = masks[t]

@@ -353,12 +353,15 @@ class Tracker:
         """One ECM iteration from ``q`` (:meth:`FrameECM.iterate`); returns the new q."""
         return self.ecm.iterate(q, Views.of(self.cameras if cameras is None else cameras, masks), delta_px, timings)
 
+    def _seeing(self, masks, source: str) -> Views:
+        """One frame's ``masks``, checked, as views of the cameras that can drive the pose."""
+        return Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean)).seeing()
+
     def _one_frame(self, q, masks, source: str, priors: Sequence = ()) -> tuple[Views, np.ndarray, dict] | None:
         """ECM from ``q`` on one frame's masks (no prediction, no hypotheses; ``priors``
         added to the standing ones), or None if no mask can drive the pose
         (:func:`~kms2pin.ecm.masks.mask_problem`)."""
-        views = Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean))
-        views = views.seeing()
+        views = self._seeing(masks, source)
         if not len(views):
             return None
         timings = new_timings()
@@ -393,7 +396,7 @@ class Tracker:
         it was.  Returns the configuration, its fit (IoU) and the moves kept (0 without
         ``reach_search``, or where no mask can drive the pose)."""
         q = np.array(q, dtype=float)
-        views = Views.of(self.cameras, check_masks(masks, self.cameras, source, self.options.silhouette.clean)).seeing()
+        views = self._seeing(masks, source)
         if not len(views):
             return q, 0.0, 0
         fit = self.ecm.fit(q, views)
