@@ -9,6 +9,7 @@ from typing import NoReturn
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: threads only cost time
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,6 +43,29 @@ rigidBodySystem mixed {
 constraint spherical(origin, mixed.a.base, 10, 0, -30);
 """
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
+
+
+def page_commands(html: str) -> list[dict]:
+    """The meshcat commands embedded in a standalone page, decoded."""
+    import base64
+    import re
+
+    import umsgpack
+
+    blobs = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
+    return [umsgpack.unpackb(base64.b64decode(b)) for b in blobs]
+
+
+def drawn_semi_axes(html: str, kind: str = "inner") -> dict[str, np.ndarray]:
+    """Each body's ``kind`` ellipsoid's semi-axes as a standalone meshcat page draws it
+    (a unit sphere scaled by them), by body name."""
+    out = {}
+    for c in page_commands(html):
+        if c["type"] == "set_object" and c["path"].endswith(f"/{kind}") and "/bodies/" in c["path"]:
+            assert c["object"]["geometries"][0]["radius"] == 1.0
+            body = c["path"].rsplit("/bodies/", 1)[1].rsplit("/", 1)[0]
+            out[body] = np.diag(np.array(c["object"]["object"]["matrix"]).reshape(4, 4))[:3]
+    return out
 
 
 def set_csv_cell(path: Path, line: int, column: str, value: str) -> None:

@@ -14,6 +14,7 @@ from conftest import PNG, set_csv_cell
 from kms2pin.cli import main
 from kms2pin.ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, parts
 from kms2pin.ecm.camera import Camera
+from kms2pin.ecm.sizes import SCALE_MAX, SCALE_MIN
 from kms2pin.robot import load
 from kms2pin.video.synthetic import walking_video
 
@@ -728,7 +729,23 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
         assert main(["evaluate", str(out), str(masks / "truth.csv"), "--json", *extra]) == 0
         reports.append(json.loads(capsys.readouterr().out))
     assert reports[1]["revolute_rmse_deg"] < 0.9 * reports[0]["revolute_rmse_deg"]  # (2.36 -> 1.79 deg)
+    # animation.html draws the refit at the sizes it measured again, not the track's (poses.npz)
+    drawn = _drawn_scales(robot, out)
+    online = np.load(out / "poses.npz")["body_scales"]
+    assert np.all((drawn >= SCALE_MIN) & (drawn <= SCALE_MAX))
+    assert np.abs(drawn - online).max() > 1e-3 and np.abs(drawn - 1.0).max() > 1e-3  # nor the spec's
     _smoothed_and_scored(robot, out, masks, kept, "--temporal", capsys)
+
+
+def _drawn_scales(robot, out: Path) -> np.ndarray:
+    """(n_bodies, 3): the sizes animation.html draws each body at, relative to the spec's."""
+    from conftest import drawn_semi_axes
+
+    html = (out / "animation.html").read_text()
+    inner, outer = drawn_semi_axes(html, "inner"), drawn_semi_axes(html, "outer")
+    scales = np.array([inner[b] / robot.inner(b) for b in robot.bodies])
+    np.testing.assert_allclose([outer[b] / robot.outer(b) for b in robot.bodies], scales, rtol=1e-12)
+    return scales
 
 
 def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted(tmp_path, capsys):
@@ -756,6 +773,9 @@ def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted
     assert ("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every and "
             "--temporal-searches set the refit of --temporal; without it they do nothing") in err
     assert not (other / "temporal.csv").exists() and "temporal" not in json.loads((other / "meta.json").read_text())
+    scales = np.load(other / "poses.npz")["body_scales"]  # the track's measured sizes, drawn in animation.html
+    assert np.abs(scales - 1.0).max() > 1e-3
+    np.testing.assert_allclose(_drawn_scales(load(LOWER, root="free"), other), scales, rtol=1e-12)
     for bad in (["--temporal-weight", "-1"], ["--temporal-sweeps", "0"], ["--temporal-weight", "nan"],
                 ["--temporal-starts", "pose,truth"], ["--temporal-starts", "pose,pose"], ["--temporal-starts", ""],
                 ["--temporal-sizes-every", "-1"], ["--temporal-sizes-every", "1.5"], ["--temporal-searches", "-1"],

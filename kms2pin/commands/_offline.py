@@ -122,11 +122,11 @@ def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
 
 
 def run_offline(args, out: Path, robot: Robot, options, tracker: Tracker, frames: _Frames, results: list,
-                tracks: list) -> np.ndarray:
+                tracks: list) -> tuple[np.ndarray, np.ndarray]:
     """The passes asked for, in order (--stretches, --both-ways or --beside, then
     --temporal), on the tracked ``results``; returns the last pass's poses (the track's
-    without any)."""
-    qs = np.array([r.q for r in results])
+    without any) and the body sizes they were fit at (the tracker's; --temporal's own)."""
+    qs, scales = np.array([r.q for r in results]), tracker.scales.copy()
     if args.stretches:
         qs = _keep_stretches(out, robot, tracker, frames, results, tracks)
     elif args.both_ways:
@@ -134,8 +134,8 @@ def run_offline(args, out: Path, robot: Robot, options, tracker: Tracker, frames
     elif args.beside:
         qs = _take_beside(out, robot, tracker, frames, results)
     if args.temporal:
-        qs = _refit_over_time(args, out, robot, tracker, frames, results, qs)
-    return qs
+        qs, scales = _refit_over_time(args, out, robot, tracker, frames, results, qs)
+    return qs, scales
 
 
 class FrameMasks(Sequence):
@@ -299,7 +299,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                      qs: np.ndarray) -> np.ndarray:
     """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
     (:func:`kms2pin.ecm.temporal.temporal`, from the last frame's body sizes, measured
-    again at its poses as it goes); returns its poses."""
+    again at its poses as it goes); returns its poses and the body sizes they were fit at."""
     progress = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -332,4 +332,4 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     print(f"note: --temporal: {n} frames refit over {_sweeps(args)} sweeps from {' and '.join(_starts_of(args))} "
           f"({procs} process{'es' if procs > 1 else ''}{sizes}); mean fit (IoU) "
           f"{float(tm.fit.mean()) if n else 0.0:.3f}", file=sys.stderr)
-    return tm.q
+    return tm.q, tm.scales

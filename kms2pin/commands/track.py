@@ -380,10 +380,11 @@ def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scale
     return video
 
 
-def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, meta: dict) -> None:
-    """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html, motion.bvh (if
-    the model can be written as BVH; the last two of ``qs``, smoothed with ``--smooth``) and
-    meta.json complete."""
+def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, scales: np.ndarray, frames: _Frames,
+               meta: dict) -> None:
+    """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html (its bodies at
+    ``scales``, the sizes ``qs`` were fit at), motion.bvh (if the model can be written as
+    BVH; the last two of ``qs``, smoothed with ``--smooth``) and meta.json complete."""
     if args.smooth is not None:  # checked against --fps before tracking (run)
         qs = Trajectory(robot, qs).smoothed(args.fps, args.smooth).q
         with replaced(out / "smoothed.csv") as tmp:
@@ -403,7 +404,7 @@ def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, frames: _Frames, m
     else:
         try:
             with replaced(out / "animation.html") as tmp:
-                write_animation_html(robot, qs, args.fps, tmp)
+                write_animation_html(robot, qs, args.fps, tmp, scales=scales)
         except Exception as err:  # noqa: BLE001
             print(f"note: animation.html skipped ({err})", file=sys.stderr)
     try:
@@ -487,7 +488,7 @@ def _run_tracker(args, out: Path, robot: Robot, options, tracker: Tracker, frame
         reacquire = Reacquisition(robot, frames.cameras, q0, reference_fit=init_fit)
     results, tracker, tracks = _track_frames(args, out, robot, tracker, frames, reacquire)
     tracker.close()  # the tracks beside's processes: the passes below do not step them
-    qs = run_offline(args, out, robot, options, tracker, frames, results, tracks)
-    _write_end(out, args, robot, qs, frames, meta)
+    qs, scales = run_offline(args, out, robot, options, tracker, frames, results, tracks)
+    _write_end(out, args, robot, qs, scales, frames, meta)
     _summary(out, results, frames, tracker.options.silhouette.poor_fit, video_mode)
     return 0

@@ -135,7 +135,7 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     if int(sizes_every) != sizes_every or sizes_every < 0:
         raise ValueError(f"sizes_every must be a whole number >= 0, not {sizes_every!r}")
     searches = tuple(searches)
-    if any(isinstance(k, bool) or int(k) != k or k < 0 for k in searches):
+    if not all(_sweep_number(k) for k in searches):
         raise ValueError(f"searches must be sweeps' numbers, whole numbers >= 0, not {searches!r}")
     searched = {int(k) for k in searches}
     if int(jobs) != jobs or jobs < 1:
@@ -145,7 +145,7 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     if not sweeps:
         return Temporal(q, np.array([tracker.fit(q[t], masks[t], source=names[t]) for t in range(n)]), own)
     global _SHARED
-    scales, fit, pool = own, np.zeros(n), None
+    scales, fit, pool, done = own, np.zeros(n), None, False
     try:
         _SHARED = (tracker, masks, names, float(weight))
         if processes(jobs, n) > 1:
@@ -157,13 +157,25 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
             if k in searched and tracker.reach is not None:
                 q = _searched(q, scales, pool, int(jobs))
             q, fit = _sweep(q, starts, scales, pool, int(jobs), progress)
+        done = True
     finally:
         _SHARED = None
         tracker.sizes.set_all(own)
-        if pool is not None:
+        if pool is not None and done:  # finished: the idle processes leave by themselves
+            pool.close()
+        elif pool is not None:  # an error or Ctrl-C: the processes are stopped
             pool.terminate()
+        if pool is not None:
             pool.join()
     return Temporal(q, fit, scales)
+
+
+def _sweep_number(k) -> bool:
+    """Whether ``k`` names a sweep: a whole number >= 0 (not a bool)."""
+    try:
+        return not isinstance(k, bool) and int(k) == k and k >= 0
+    except (TypeError, ValueError):
+        return False
 
 
 def processes(jobs: int, n: int) -> int:

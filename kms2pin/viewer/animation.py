@@ -21,11 +21,13 @@ if TYPE_CHECKING:
 
 def animate(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float = 30.0,
             vis: meshcat.Visualizer | None = None, *, camera: str = "front", aspect: float = 16 / 10,
-            repetitions: int = 1, play: bool = True) -> meshcat.Visualizer:
+            repetitions: int = 1, play: bool = True, scales: np.ndarray | None = None) -> meshcat.Visualizer:
     """Draw ``robot`` and load ``trajectory`` as a meshcat animation.
 
     ``trajectory`` is a ``(T, nq)`` array of configurations or anything with such a
-    ``q`` attribute (a :class:`~kms2pin.ecm.Trajectory`).
+    ``q`` attribute (a :class:`~kms2pin.ecm.Trajectory`).  The bodies are drawn at
+    ``scales`` (n_bodies, 3) times the spec's semi-axes: by default the trajectory's own
+    ``scales`` (the sizes a tracker measured), else the spec's.
 
     The model is drawn at frame 0; the camera frames every pose of the
     trajectory.  The animation (``fps`` frames per second) is part of
@@ -36,7 +38,9 @@ def animate(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float = 30.0
     fps = float(fps)
     if not (fps > 0 and np.isfinite(fps)):
         raise ViewerError(f"fps must be positive, not {fps}")
-    view = RobotView(robot, traj[0], vis, camera=camera, aspect=aspect, serve=False)
+    if scales is None:
+        scales = getattr(trajectory, "scales", None)
+    view = RobotView(robot, traj[0], vis, camera=camera, aspect=aspect, serve=False, scales=scales)
     drawing = view.drawing
     stride = max(1, len(traj) // 50)
     pts = union_points([view.frame_points()] + [drawing.frame_points(q) for q in traj[::stride]])
@@ -54,8 +58,9 @@ def animate(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float = 30.0
 
 
 def write_animation_html(robot: Robot, trajectory: np.ndarray | Trajectory, fps: float,
-                         path: str | os.PathLike, *, camera: str = "front", repetitions: int = 1) -> Path:
-    """Write a standalone HTML page playing ``trajectory`` (as for :func:`animate`; no
-    server needed)."""
-    vis = animate(robot, trajectory, fps, camera=camera, repetitions=repetitions)
+                         path: str | os.PathLike, *, camera: str = "front", repetitions: int = 1,
+                         scales: np.ndarray | None = None) -> Path:
+    """Write a standalone HTML page playing ``trajectory`` (as for :func:`animate`, the
+    bodies at ``scales``; no server needed)."""
+    vis = animate(robot, trajectory, fps, camera=camera, repetitions=repetitions, scales=scales)
     return save_html(vis, path)

@@ -69,19 +69,23 @@ class RobotView:
         camera: ``front``, ``side``, ``top`` or ``iso``.
         aspect: width / height the camera is framed for.
         host: where a new server listens (default 127.0.0.1: this machine only).
+        scales: (n_bodies, 3) factors of the bodies' semi-axes (a tracker's measured
+            sizes; default the spec's).
 
     ``close()`` (or ``with RobotView(...)``) stops the server it started.
     """
 
     def __init__(self, robot: Robot, q=None, vis: meshcat.Visualizer | None = None, *, camera: str = "front",
                  aspect: float = 1.0, serve: bool = False, joint_axes: bool = True, anchor: bool = True,
-                 world_axes: bool = True, outer: bool = True, name: str = "model", host: str = "127.0.0.1"):
+                 world_axes: bool = True, outer: bool = True, name: str = "model", host: str = "127.0.0.1",
+                 scales: np.ndarray | None = None):
         self.robot = robot
         self.owns_vis = vis is None
         self.vis = new_visualizer(serve, host=host) if vis is None else vis
         try:
             plain_background(self.vis)
-            self.drawing = ModelDrawing(robot, self.vis, name, joint_axes=joint_axes, anchor=anchor, outer=outer)
+            self.drawing = ModelDrawing(robot, self.vis, name, joint_axes=joint_axes, anchor=anchor, outer=outer,
+                                        scales=scales)
             self.drawing.draw(robot.q_rest if q is None else q)
             self.axes_points = np.zeros((0, 3))
             if world_axes:

@@ -280,20 +280,39 @@ def model_size(robot: Robot, q: np.ndarray | None = None) -> float:
     return float(np.max(pts.max(axis=0) - pts.min(axis=0))) or 1.0
 
 
+def body_scales(robot: Robot, scales) -> np.ndarray:
+    """``scales`` checked as (n_bodies, 3) positive finite factors of ``robot``'s body sizes
+    (None: ones, the spec's sizes); a :class:`ViewerError` otherwise."""
+    n = len(robot.bodies)
+    if scales is None:
+        return np.ones((n, 3))
+    try:
+        sc = np.array(scales, dtype=float)
+    except (TypeError, ValueError):
+        raise ViewerError(f"scales must be numbers, (n_bodies, 3) = ({n}, 3)") from None
+    if sc.shape != (n, 3) or not np.all(np.isfinite(sc)) or not np.all(sc > 0):
+        raise ViewerError(f"scales must be positive, finite and of shape ({n}, 3) (one factor per body and "
+                          f"semi-axis), not shape {sc.shape}")
+    return sc
+
+
 class ModelDrawing:
     """One robot drawn under ``/meshcat/kms2pin/<name>``.
 
     Geometry is uploaded once by :meth:`draw`; :meth:`set_configuration` only
     sends one ``set_transform`` per body (recorded in :attr:`transform_log` as
     ``(path, 4x4 matrix)``).  ``offset`` shifts the whole drawing (thesis world
-    coordinates), e.g. to put two poses side by side.
+    coordinates), e.g. to put two poses side by side.  ``scales`` (n_bodies, 3) multiply
+    each body's inner and outer semi-axes (a tracker's measured sizes,
+    :attr:`~kms2pin.ecm.tracker.Tracker.scales`; default the spec's).
     """
 
     def __init__(self, robot: Robot, vis: meshcat.Visualizer, name: str = "model", *,
                  inner_rgba=INNER_RGBA, outer_rgba=OUTER_RGBA, outer: bool = True,
                  joint_axes: bool = True, anchor: bool = True, offset=(0.0, 0.0, 0.0),
-                 size: float | None = None):
+                 size: float | None = None, scales: np.ndarray | None = None):
         self.robot = robot
+        self.scales = body_scales(robot, scales)
         self.vis = vis
         self.name = name
         self.inner_rgba = tuple(inner_rgba)
@@ -322,6 +341,11 @@ class ModelDrawing:
     def axis_length(self) -> float:
         return 0.12 * self.size
 
+    def semi_axes(self, body: str, kind: str) -> np.ndarray:
+        """``body``'s ``kind`` ("inner" or "outer") semi-axes as drawn (the spec's times :attr:`scales`)."""
+        spec = self.robot.inner(body) if kind == "inner" else self.robot.outer(body)
+        return np.asarray(spec, dtype=float) * self.scales[self.robot.bodies.index(body)]
+
     def root_joint(self) -> Joint | None:
         return self.robot.system.joints[0] if self.robot.system.joints[0].parent is None else None
 
@@ -337,9 +361,9 @@ class ModelDrawing:
         outer_mat = material(self.outer_rgba)
         for body in robot.bodies:
             node = vis[self.body_path(body)]
-            node["inner"].set_object(g.Ellipsoid(robot.inner(body).tolist()), inner_mat)
+            node["inner"].set_object(g.Ellipsoid(self.semi_axes(body, "inner").tolist()), inner_mat)
             if self.outer:
-                node["outer"].set_object(g.Ellipsoid(robot.outer(body).tolist()), outer_mat)
+                node["outer"].set_object(g.Ellipsoid(self.semi_axes(body, "outer").tolist()), outer_mat)
         if self.joint_axes:
             for j in robot.system.joints:
                 if j.kind not in ("revolute", "prismatic"):  # a hinge's axis or a slide's direction
@@ -383,7 +407,7 @@ class ModelDrawing:
     def frame_points(self, q: np.ndarray | None = None) -> np.ndarray:
         """Points to frame: the outer (or inner) ellipsoids, axes and anchor at ``q``."""
         q = self.q if q is None else q
-        pts = [ellipsoid_points(M, self.robot.outer(n) if self.outer else self.robot.inner(n)) + self.offset
+        pts = [ellipsoid_points(M, self.semi_axes(n, "outer" if self.outer else "inner")) + self.offset
                for n, M in zip(self.robot.bodies, self.robot.body_poses(q))]
         if self.anchor:
             pts.append(self.anchor_point()[None])

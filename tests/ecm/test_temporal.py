@@ -278,6 +278,6 @@ def test_the_limbs_are_searched_again_before_the_chosen_sweeps(walk):
 
 def test_bad_searches_are_refused(walk):
     _, _, truth, masks, tracker = walk
-    for bad in ((-1,), (1.5,), (True,)):
+    for bad in ((-1,), (1.5,), (True,), ("x",), (None,), ([4],), (float("nan"),)):
         with pytest.raises(ValueError, match="searches"):
             temporal(tracker, masks, truth, searches=bad)

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import base64
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import umsgpack
+from conftest import page_commands  # noqa: F401 - the viewer tests' import
 
 import kms2pin
 
@@ -33,12 +32,6 @@ class FakeResult:
     residual: float = 0.0
     energy: float = 0.0
     forces: np.ndarray | None = None
-
-
-def page_commands(html: str) -> list[dict]:
-    """The meshcat commands embedded in a standalone page, decoded."""
-    blobs = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
-    return [umsgpack.unpackb(base64.b64decode(b)) for b in blobs]
 
 
 def without_uuids(obj):

@@ -71,3 +71,34 @@ def test_animation_html_of_a_trajectory_object_to_a_str_path(lowerbody, tmp_path
     assert len(pos["keys"]) == len(traj)
     expected = lowerbody.body_poses(traj[-1])[lowerbody.index("leftShin")].translation
     np.testing.assert_allclose(pos["keys"][-1]["value"], expected)
+
+
+def test_animation_draws_the_bodies_at_the_sizes_the_track_measured(lowerbody, tmp_path):
+    """The bodies drawn at ``scales`` times the spec's semi-axes, by default the
+    trajectory's own (the sizes a tracker measured), an explicit ``scales`` first."""
+    from conftest import drawn_semi_axes
+
+    from kms2pin.ecm import Trajectory
+
+    traj = _trajectory(lowerbody, 4)
+    rng = np.random.default_rng(3)
+    measured, given = rng.uniform(0.7, 1.4, (2, len(lowerbody.bodies), 3))
+    for name, kwargs, trajectory, expected in (
+        ("spec", {}, traj, np.ones_like(measured)),
+        ("array", {"scales": given}, traj, given),
+        ("trajectory", {}, Trajectory(lowerbody, traj, scales=measured), measured),
+        ("both", {"scales": given}, Trajectory(lowerbody, traj, scales=measured), given),
+    ):
+        html = write_animation_html(lowerbody, trajectory, 10, tmp_path / f"{name}.html", **kwargs).read_text()
+        for kind, spec in (("inner", lowerbody.inner), ("outer", lowerbody.outer)):
+            drawn = drawn_semi_axes(html, kind)
+            assert set(drawn) == set(lowerbody.bodies)
+            for i, body in enumerate(lowerbody.bodies):
+                np.testing.assert_allclose(drawn[body], np.asarray(spec(body)) * expected[i], rtol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("bad", [np.ones((2, 3)), np.zeros((9, 3)), np.full((9, 3), np.nan), [["a"] * 3] * 9])
+def test_bad_body_scales_are_refused(lowerbody, bad):
+    assert len(lowerbody.bodies) == 9
+    with pytest.raises(ViewerError, match="scales must be"):
+        animate(lowerbody, _trajectory(lowerbody, 2), 10, scales=bad)
