@@ -734,6 +734,10 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
     online = np.load(out / "poses.npz")["body_scales"]
     assert np.all((drawn >= SCALE_MIN) & (drawn <= SCALE_MAX))
     assert np.abs(drawn - online).max() > 1e-3 and np.abs(drawn - 1.0).max() > 1e-3  # nor the spec's
+    saved = Trajectory.from_npz(robot, out / "temporal.npz")  # the refit with those sizes, as poses.npz the track
+    np.testing.assert_allclose(saved.scales, drawn, rtol=1e-12)
+    np.testing.assert_allclose(saved.q, kept, atol=1e-6)
+    np.testing.assert_allclose([r.fit for r in saved.results], fits, rtol=0, atol=5.1e-5)  # the rows' own fits (4 places)
     _smoothed_and_scored(robot, out, masks, kept, "--temporal", capsys)
 
 

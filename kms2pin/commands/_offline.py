@@ -297,7 +297,7 @@ def _starts_of(args) -> tuple[str, ...]:
 
 def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
                      qs: np.ndarray) -> np.ndarray:
-    """``--temporal``: temporal.csv, the finished track ``qs`` refit over time
+    """``--temporal``: temporal.csv and temporal.npz, the finished track ``qs`` refit over time
     (:func:`kms2pin.ecm.temporal.temporal`, from the last frame's body sizes, measured
     again at its poses as it goes); returns its poses and the body sizes they were fit at."""
     progress = None
@@ -323,6 +323,8 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
                                         flags=tuple(flags)))
     with replaced(out / "temporal.csv") as tmp:
         Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
+    with replaced(out / "temporal.npz") as tmp:  # the same poses with the sizes they were fit at
+        Trajectory(robot, tm.q, rows, scales=tm.scales).to_npz(tmp)
     procs = over_time.processes(jobs, n)
     every = _sizes_every(args)
     sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""

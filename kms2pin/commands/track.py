@@ -21,9 +21,11 @@ beside (--second-track), stretches.csv keeps each stretch of frames from the tra
 fits it best, changing track where the tracks agree, then each part from the other tracks
 and from the frames beside (kms2pin.ecm.stretches); with --temporal, temporal.csv
 is the finished track (the last of those) refit frame by frame by ECM with a spring
-towards the frames beside it, over several sweeps (kms2pin.ecm.temporal);
+towards the frames beside it, over several sweeps (kms2pin.ecm.temporal), and
+temporal.npz the same poses with the body sizes the refit measured;
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
-(kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these.
+(kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these
+(animation.html with the body sizes its poses were fit at).
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
@@ -125,7 +127,7 @@ def _load_cameras(paths: list[str]) -> tuple[list[Camera], list[str]]:
 
 
 _OUTPUTS = ("trajectory.csv", "poses.npz", "overlay.mp4", "animation.html", "joint_angles.png", "motion.bvh",
-            "smoothed.csv", "both_ways.csv", "beside.csv", "stretches.csv", "temporal.csv")
+            "smoothed.csv", "both_ways.csv", "beside.csv", "stretches.csv", "temporal.csv", "temporal.npz")
 OVERLAY_TMP = ".overlay.tmp.mp4"
 
 
