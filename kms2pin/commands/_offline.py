@@ -296,7 +296,7 @@ def _starts_of(args) -> tuple[str, ...]:
 
 
 def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _Frames, results: list,
-                     qs: np.ndarray) -> np.ndarray:
+                     qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``--temporal``: temporal.csv and temporal.npz, the finished track ``qs`` refit over time
     (:func:`kms2pin.ecm.temporal.temporal`, from the last frame's body sizes, measured
     again at its poses as it goes); returns its poses and the body sizes they were fit at."""
