@@ -321,10 +321,11 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
         flags += [poor_fit_flag(fit)] if r.iterations and fit < tracker.options.silhouette.poor_fit else []
         rows.append(dataclasses.replace(r, q=tm.q[k].copy(), body_poses=robot.maximal_coordinates(tm.q[k]), fit=fit,
                                         flags=tuple(flags)))
+    refit = Trajectory(robot, tm.q, rows, scales=tm.scales)  # temporal.npz also keeps the sizes it was fit at
     with replaced(out / "temporal.csv") as tmp:
-        Trajectory(robot, tm.q, rows).to_csv(tmp, frames=frames.numbers[:n])
-    with replaced(out / "temporal.npz") as tmp:  # the same poses with the sizes they were fit at
-        Trajectory(robot, tm.q, rows, scales=tm.scales).to_npz(tmp)
+        refit.to_csv(tmp, frames=frames.numbers[:n])
+    with replaced(out / "temporal.npz") as tmp:
+        refit.to_npz(tmp)
     procs = over_time.processes(jobs, n)
     every = _sizes_every(args)
     sizes = f", the body sizes measured again every {every} sweeps" if every and every < _sweeps(args) else ""

@@ -125,20 +125,20 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
         raise ValueError(f"q must have shape ({n}, {robot.nq}) (one pose per frame), not {q.shape}")
     if not weight >= 0 or not np.isfinite(weight):
         raise ValueError(f"weight must be a finite number >= 0, not {weight!r}")
-    if int(sweeps) != sweeps or sweeps < 0:
+    if not _whole(sweeps):
         raise ValueError(f"sweeps must be a whole number >= 0, not {sweeps!r}")
     given = tuple(starts)
     if not given or any(s not in START_NAMES for s in given) or len(set(given)) != len(given):
         raise ValueError(f"starts must name each of {', '.join(START_NAMES)} at most once, and one at least, "
                          f"not {given!r}")
     starts = tuple(s for s in START_NAMES if s in given)  # a tie (an empty frame: 0 from each) to the frame's pose
-    if int(sizes_every) != sizes_every or sizes_every < 0:
+    if not _whole(sizes_every):
         raise ValueError(f"sizes_every must be a whole number >= 0, not {sizes_every!r}")
     searches = tuple(searches)
-    if not all(_sweep_number(k) for k in searches):
+    if not all(_whole(k) and not isinstance(k, bool) for k in searches):
         raise ValueError(f"searches must be sweeps' numbers, whole numbers >= 0, not {searches!r}")
     searched = {int(k) for k in searches}
-    if int(jobs) != jobs or jobs < 1:
+    if not _whole(jobs, 1):
         raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
     own = tracker.scales.copy()
@@ -161,20 +161,20 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     finally:
         _SHARED = None
         tracker.sizes.set_all(own)
-        if pool is not None and done:  # finished: the idle processes leave by themselves
-            pool.close()
-        elif pool is not None:  # an error or Ctrl-C: the processes are stopped
-            pool.terminate()
-        if pool is not None:
+        if pool is not None:  # finished, the idle processes leave by themselves; else they are stopped
+            if done:
+                pool.close()
+            else:
+                pool.terminate()
             pool.join()
     return Temporal(q, fit, scales)
 
 
-def _sweep_number(k) -> bool:
-    """Whether ``k`` names a sweep: a whole number >= 0 (not a bool)."""
+def _whole(x, least: int = 0) -> bool:
+    """Whether ``x`` is a whole number >= ``least`` (anything else, a string, None or NaN: False)."""
     try:
-        return not isinstance(k, bool) and int(k) == k and k >= 0
-    except (TypeError, ValueError):
+        return int(x) == x and x >= least
+    except (TypeError, ValueError, OverflowError):
         return False
 
 
