@@ -741,6 +741,43 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
     _smoothed_and_scored(robot, out, masks, kept, "--temporal", capsys)
 
 
+def test_after_an_offline_pass_the_overlay_shows_its_poses_at_its_sizes(tmp_path, cams2, capsys):
+    """overlay.mp4 after ``--temporal``: each frame drawn again at temporal.npz's poses and
+    sizes (the refit), nearer that drawing than the online track's (poses.npz), frame by frame."""
+    from kms2pin.ecm import Trajectory
+    from kms2pin.video.io import read_mask
+    from kms2pin.viewer.overlay import overlay_image
+
+    masks = _synth(tmp_path, cams2, frames=5, noise=0.05)
+    out = tmp_path / "out"
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--temporal", "--temporal-sweeps", "3",
+                 "--temporal-weight", "0.05", "--jobs", "1", "-o", str(out)]) == 0
+    capsys.readouterr()
+    robot = load(LOWER, root="free")
+    cameras = Camera.list_from_json(masks / "cameras.json")
+    refit, online = Trajectory.from_npz(robot, out / "temporal.npz"), Trajectory.from_npz(robot, out / "poses.npz")
+    video = cv2.VideoCapture(str(out / "overlay.mp4"))
+    shown = []
+    while True:
+        ok, img = video.read()
+        if not ok:
+            break
+        shown.append(img.astype(float))
+    video.release()
+    assert len(shown) == 5
+    gaps = []
+    for k, img in enumerate(shown):
+        views = [read_mask(masks / f"cam{c}" / f"frame_{k:05d}.png", k, cam.shape, "", set())
+                 for c, cam in enumerate(cameras)]
+        a = overlay_image(robot, cameras, views, refit.q[k], refit.scales).astype(float)
+        b = overlay_image(robot, cameras, views, online.q[k], online.scales).astype(float)
+        differ = np.abs(a - b).sum(axis=2) > 60  # where the two drawings' ellipses part
+        assert differ.sum() > 100
+        gaps.append((np.abs(img - a)[differ].mean(), np.abs(img - b)[differ].mean()))
+    # (about 22 against 36 grey levels; the online track's overlay gives the reverse)
+    assert all(to_refit < 0.75 * to_online for to_refit, to_online in gaps), gaps
+
+
 def _drawn_scales(robot, out: Path) -> np.ndarray:
     """(n_bodies, 3): the sizes animation.html draws each body at, relative to the spec's."""
     from conftest import drawn_semi_axes

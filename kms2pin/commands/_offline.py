@@ -31,7 +31,8 @@ from ._outputs import replaced
 if TYPE_CHECKING:
     from .track import _Frames
 
-__all__ = ["FrameMasks", "add_offline_arguments", "frame_names", "offline_meta", "offline_notes", "run_offline"]
+__all__ = ["FrameMasks", "add_offline_arguments", "frame_names", "offline_meta", "offline_notes", "offline_passes",
+           "run_offline"]
 
 
 def add_offline_arguments(p: argparse.ArgumentParser) -> None:
@@ -119,6 +120,12 @@ def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
                  "temporal_starts": list(_starts_of(args)), "temporal_sizes_every": _sizes_every(args),
                  "temporal_searches": list(_searches_of(args))}
     return meta
+
+
+def offline_passes(args) -> bool:
+    """Whether any offline pass was asked for (the poses the outputs show are then not the
+    online track's)."""
+    return bool(args.stretches or args.both_ways or args.beside or args.temporal)
 
 
 def run_offline(args, out: Path, robot: Robot, options, tracker: Tracker, frames: _Frames, results: list,

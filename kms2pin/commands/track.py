@@ -25,7 +25,8 @@ towards the frames beside it, over several sweeps (kms2pin.ecm.temporal), and
 temporal.npz the same poses with the body sizes the refit measured;
 with --smooth HZ smoothed.csv is the finished track low-pass filtered
 (kms2pin.ecm.smoothing).  motion.bvh and animation.html show the last of these
-(animation.html with the body sizes its poses were fit at).
+(animation.html with the body sizes its poses were fit at); after an offline pass
+overlay.mp4 is drawn again at that pass's poses and sizes (not smoothed).
 
 A frame whose masks are all empty (the subject has left every image) keeps the
 last pose and is flagged "empty mask" in trajectory.csv; with the automatic
@@ -68,7 +69,7 @@ from ._common import (
     positive_count,
     read_model,
 )
-from ._offline import add_offline_arguments, offline_meta, offline_notes, run_offline
+from ._offline import add_offline_arguments, offline_meta, offline_notes, offline_passes, run_offline
 from ._outputs import interrupts_deferred, owns_output, replaced, write_files_atomically
 from ._tracking import add_tracker_arguments, tracker_options
 from .segment import add_lighting_arguments
@@ -382,11 +383,32 @@ def _overlay_frame(video, out: Path, fps: float, robot, cameras, masks, q, scale
     return video
 
 
+def _rewrite_overlay(out: Path, fps: float, robot: Robot, frames: _Frames, qs: np.ndarray, scales: np.ndarray) -> None:
+    """overlay.mp4 drawn again at the offline passes' poses ``qs`` and sizes ``scales``
+    (the online track's, written while tracking, replaced once this one is complete)."""
+    video = None
+    try:
+        for k, q in enumerate(qs):
+            video = _overlay_frame(video, out, fps, robot, frames.cameras, frames.load(k), q, scales)
+    except BaseException:
+        if video is not None:
+            video.release()
+        (out / OVERLAY_TMP).unlink(missing_ok=True)  # the online track's overlay.mp4 stays
+        raise
+    if video is not None:
+        video.release()
+        if (out / OVERLAY_TMP).exists():
+            os.replace(out / OVERLAY_TMP, out / "overlay.mp4")
+
+
 def _write_end(out: Path, args, robot: Robot, qs: np.ndarray, scales: np.ndarray, frames: _Frames,
                meta: dict) -> None:
     """smoothed.csv (``--smooth``), joint_angles.png (video), animation.html (its bodies at
     ``scales``, the sizes ``qs`` were fit at), motion.bvh (if the model can be written as
-    BVH; the last two of ``qs``, smoothed with ``--smooth``) and meta.json complete."""
+    BVH; the last two of ``qs``, smoothed with ``--smooth``), overlay.mp4 again after an
+    offline pass (at the last pass's poses and sizes, not smoothed) and meta.json complete."""
+    if not args.no_video and offline_passes(args):
+        _rewrite_overlay(out, args.fps, robot, frames, qs, scales)
     if args.smooth is not None:  # checked against --fps before tracking (run)
         qs = Trajectory(robot, qs).smoothed(args.fps, args.smooth).q
         with replaced(out / "smoothed.csv") as tmp:
