@@ -778,6 +778,37 @@ def test_after_an_offline_pass_the_overlay_shows_its_poses_at_its_sizes(tmp_path
     assert all(to_refit < 0.75 * to_online for to_refit, to_online in gaps), gaps
 
 
+def test_an_overlay_redraw_interrupted_leaves_the_online_tracks_and_no_temporary_file(tmp_path, cams2, monkeypatch,
+                                                                                         capsys):
+    """Ctrl-C while overlay.mp4 is drawn again after ``--beside``: the online track's
+    overlay.mp4 stays whole (every frame), no temporary file is left, meta.json says
+    the run is not complete, and the exit status is 130."""
+    import kms2pin.commands.track as track_command
+
+    masks = _synth(tmp_path, cams2, frames=4)
+    out = tmp_path / "out"
+    drawn, real = [], track_command._overlay_frame
+
+    def interrupted(*args):
+        drawn.append(1)
+        if len(drawn) == 4 + 2:  # the redraw's second frame
+            raise KeyboardInterrupt
+        return real(*args)
+
+    monkeypatch.setattr(track_command, "_overlay_frame", interrupted)
+    assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--beside", "-o", str(out)]) == 130
+    capsys.readouterr()
+    assert len(drawn) == 6 and (out / "beside.csv").is_file()
+    video = cv2.VideoCapture(str(out / "overlay.mp4"))
+    frames = 0
+    while video.read()[0]:
+        frames += 1
+    video.release()
+    assert frames == 4
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
+    assert json.loads((out / "meta.json").read_text())["complete"] is False
+
+
 def _drawn_scales(robot, out: Path) -> np.ndarray:
     """(n_bodies, 3): the sizes animation.html draws each body at, relative to the spec's."""
     from conftest import drawn_semi_axes

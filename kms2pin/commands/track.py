@@ -360,10 +360,7 @@ def _track_frames(args, out: Path, robot: Robot, tracker: Tracker, frames: _Fram
               file=sys.stderr)
         raise
     finally:
-        if video is not None:
-            video.release()
-            if (out / OVERLAY_TMP).exists():
-                os.replace(out / OVERLAY_TMP, out / "overlay.mp4")
+        _finish_overlay(video, out)
         if results:
             with replaced(out / "poses.npz") as tmp:
                 Trajectory(robot, np.array([r.q for r in results]), results, scales=tracker.scales).to_npz(tmp)
@@ -395,6 +392,11 @@ def _rewrite_overlay(out: Path, fps: float, robot: Robot, frames: _Frames, qs: n
             video.release()
         (out / OVERLAY_TMP).unlink(missing_ok=True)  # the online track's overlay.mp4 stays
         raise
+    _finish_overlay(video, out)
+
+
+def _finish_overlay(video, out: Path) -> None:
+    """Release the overlay video (if one was opened) and give it its name, OUT/overlay.mp4."""
     if video is not None:
         video.release()
         if (out / OVERLAY_TMP).exists():
