@@ -23,7 +23,9 @@ best, then the parts (``track --stretches``, :mod:`kms2pin.ecm.stretches`), raw 
 smoothed, against the track as it was tracked, and the whole poses alone; with ``--temporal``
 the finished track (the stretches' with ``--stretches``, else the track) refit over time
 (``track --temporal``, :mod:`kms2pin.ecm.temporal`), raw and smoothed, against that track
-and its process time per frame, and against the refit without the limbs searched again
+and its process time per frame, each arm's elbow and wrist after it (and which arm is the
+farther from the cameras, :func:`far_arm`, and which held nearer the trunk, :func:`lower_arm`),
+and against the refit without the limbs searched again
 (``--temporal-sweeps 8 --temporal-searches none``, the refit of the twenty-ninth session); frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
@@ -53,6 +55,32 @@ from kms2pin.ecm.temporal import SEARCHES, SWEEPS, temporal  # noqa: E402
 
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
+#: each arm's shoulder, elbow and wrist in realmotion.JOINTS: the left's, the right's
+SIDES = ((6, 7, 8), (9, 10, 11))
+#: a flexed joint's place in realmotion.JOINTS -> its column of realmotion.flexion
+FLEXED = {joint: k for k, (joint, _, _) in enumerate(rm.FLEXION.values())}
+
+
+def far_arm(truth: np.ndarray, cameras) -> int:
+    """Which arm (0 the left, 1 the right: :data:`SIDES`) is the farther from the cameras: the
+    one whose true shoulder is the farther from their centres on average (``truth`` (frames, 13, 3))."""
+    centres = np.array([c.centre for c in cameras])
+    far = [np.linalg.norm(truth[:, side[0], None, :] - centres[None], axis=2).mean() for side in SIDES]
+    return int(far[1] > far[0])
+
+
+def lower_arm(truth: np.ndarray) -> int:
+    """Which arm (0 the left, 1 the right) is held nearer the trunk: the one whose true upper
+    arm is the nearer the trunk's downward axis (from the neck to the hips' midpoint), by
+    the median angle over the frames."""
+    down = (truth[:, 0] + truth[:, 3]) / 2 - truth[:, 12]
+    down /= np.linalg.norm(down, axis=1, keepdims=True)
+    angles = []
+    for shoulder, elbow, _ in SIDES:
+        bone = truth[:, elbow] - truth[:, shoulder]
+        bone /= np.linalg.norm(bone, axis=1, keepdims=True)
+        angles.append(np.median(np.arccos(np.clip(np.sum(bone * down, axis=1), -1.0, 1.0))))
+    return int(angles[1] < angles[0])
 
 
 @functools.cache
@@ -118,6 +146,10 @@ def track_seed(job: tuple) -> dict:
                 "temporal_kept_ms": 1e3 * (time.process_time() - t0) / len(masks)}
         (err_m, flex_m), (err_ms, flex_ms) = scored(tm.q), smoothed(tm.q)
         err_b = scored(base)[0]
+        row |= {"far_arm": far_arm(truth, cameras), "lower_arm": lower_arm(truth)}
+        for side, (_, elbow, wrist) in zip(("left", "right"), SIDES):
+            row |= {f"{side}_elbow": err_m[:, elbow].mean(), f"{side}_wrist": err_m[:, wrist].mean(),
+                    f"{side}_flexion2": (flex_m[:, FLEXED[elbow]] ** 2).mean()}
         row |= {"temporal": err_m.mean(), "temporal_base": err_b.mean(), "temporal_smoothed": err_ms.mean(),
                 "worst_temporal": err_m.mean(axis=1).max(), "over120_temporal": int(np.sum(err_m.mean(axis=1) > 120.0)),
                 "knees2_temporal": (flex_m[:, :2] ** 2).mean(), "elbows2_temporal": (flex_m[:, 2:] ** 2).mean(),
@@ -269,6 +301,11 @@ def _temporal(rows: list[dict]) -> str:
             f"{col('worst_temporal').max():.0f}), none above 120 mm on {sum(r['over120_temporal'] == 0 for r in rows)} "
             f"of {len(rows)} seeds; against what it refit {_against(raw, base, 2)}; flexion RMSE knees "
             f"{rms('knees2_temporal'):.1f}, elbows {rms('elbows2_temporal'):.1f} deg\n"
+            f"    the refit's arms (medians of the seeds): " + "; ".join(
+                f"the {side} elbow {np.median(col(side + '_elbow')):.1f} mm, wrist {np.median(col(side + '_wrist')):.1f}, "
+                f"flexion RMSE {rms(side + '_flexion2'):.1f} deg" for side in ("left", "right"))
+            + f" (the farther from the cameras: the {('left', 'right')[rows[0]['far_arm']]}; held nearer the trunk: "
+            f"the {('left', 'right')[rows[0]['lower_arm']]})\n"
             f"    refit over time, smoothed: mean {sm.mean():.1f} mm, median {np.median(sm):.1f}; against the refit "
             f"{_against(sm, raw, 2)}; flexion RMSE knees {rms('knees2_temporal_smoothed'):.1f}, elbows "
             f"{rms('elbows2_temporal_smoothed'):.1f} deg\n"
