@@ -56,7 +56,10 @@ from kms2pin.ecm.temporal import SEARCHES, SWEEPS, temporal  # noqa: E402
 #: the 13 joints' places in realmotion.JOINTS: the legs', the arms'
 LEGS, ARMS = slice(0, 6), slice(6, 12)
 #: each arm's shoulder, elbow and wrist in realmotion.JOINTS: the left's, the right's
-SIDES = ((6, 7, 8), (9, 10, 11))
+SIDES = tuple(tuple(rm.JOINTS.index(j) for j in arm)
+              for arm in (("LeftShoulder", "LeftElbow", "lhand"), ("RightShoulder", "RightElbow", "rhand")))
+#: the hips' and the neck's places in realmotion.JOINTS (the trunk's axis)
+HIPS, NECK = (rm.JOINTS.index("LeftHip"), rm.JOINTS.index("RightHip")), rm.JOINTS.index("Neck")
 #: a flexed joint's place in realmotion.JOINTS -> its column of realmotion.flexion
 FLEXED = {joint: k for k, (joint, _, _) in enumerate(rm.FLEXION.values())}
 
@@ -73,7 +76,7 @@ def lower_arm(truth: np.ndarray) -> int:
     """Which arm (0 the left, 1 the right) is held nearer the trunk: the one whose true upper
     arm is the nearer the trunk's downward axis (from the neck to the hips' midpoint), by
     the median angle over the frames."""
-    down = (truth[:, 0] + truth[:, 3]) / 2 - truth[:, 12]
+    down = (truth[:, HIPS[0]] + truth[:, HIPS[1]]) / 2 - truth[:, NECK]
     down /= np.linalg.norm(down, axis=1, keepdims=True)
     angles = []
     for shoulder, elbow, _ in SIDES:

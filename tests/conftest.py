@@ -45,6 +45,21 @@ constraint spherical(origin, mixed.a.base, 10, 0, -30);
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe"  # the start of a PNG: not UTF-8
 
 
+def video_frames(path: Path) -> list[np.ndarray]:
+    """Every frame OpenCV decodes from the video file ``path`` (BGR uint8)."""
+    import cv2
+
+    video, frames = cv2.VideoCapture(str(path)), []
+    try:
+        ok, img = video.read()
+        while ok:
+            frames.append(img)
+            ok, img = video.read()
+    finally:
+        video.release()
+    return frames
+
+
 def page_commands(html: str) -> list[dict]:
     """The meshcat commands embedded in a standalone page, decoded."""
     import base64

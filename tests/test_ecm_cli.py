@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import PNG, set_csv_cell
+from conftest import PNG, set_csv_cell, video_frames
 
 from kms2pin.cli import main
 from kms2pin.ecm.bothways import MARGIN, SWEEPS, SWITCH, TOLERANCE, parts
@@ -756,14 +756,7 @@ def test_after_an_offline_pass_the_overlay_shows_its_poses_at_its_sizes(tmp_path
     robot = load(LOWER, root="free")
     cameras = Camera.list_from_json(masks / "cameras.json")
     refit, online = Trajectory.from_npz(robot, out / "temporal.npz"), Trajectory.from_npz(robot, out / "poses.npz")
-    video = cv2.VideoCapture(str(out / "overlay.mp4"))
-    shown = []
-    while True:
-        ok, img = video.read()
-        if not ok:
-            break
-        shown.append(img.astype(float))
-    video.release()
+    shown = [img.astype(float) for img in video_frames(out / "overlay.mp4")]
     assert len(shown) == 5
     gaps = []
     for k, img in enumerate(shown):
@@ -799,12 +792,7 @@ def test_an_overlay_redraw_interrupted_leaves_the_online_tracks_and_no_temporary
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--beside", "-o", str(out)]) == 130
     capsys.readouterr()
     assert len(drawn) == 6 and (out / "beside.csv").is_file()
-    video = cv2.VideoCapture(str(out / "overlay.mp4"))
-    frames = 0
-    while video.read()[0]:
-        frames += 1
-    video.release()
-    assert frames == 4
+    assert len(video_frames(out / "overlay.mp4")) == 4
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
     assert json.loads((out / "meta.json").read_text())["complete"] is False
 
