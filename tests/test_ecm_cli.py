@@ -822,7 +822,7 @@ def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted
                      rf"process(es)?, the body sizes measured again every {T_SIZES_EVERY} sweeps\)",
                      capsys.readouterr().err)
     meta = json.loads((out / "meta.json").read_text())
-    assert (meta["temporal_weight"], meta["temporal_sweeps"]) == (T_WEIGHT, T_SWEEPS) == (0.01, 16)
+    assert (meta["temporal_weight"], meta["temporal_sweeps"]) == (T_WEIGHT, T_SWEEPS) == (0.01, 20)
     assert meta["temporal_searches"] == list(T_SEARCHES) == [4, 8]
     assert meta["temporal_starts"] == list(T_STARTS) == ["pose", "target"]
     assert meta["temporal_sizes_every"] == T_SIZES_EVERY == 2

@@ -65,7 +65,7 @@ __all__ = ["SEARCHES", "SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT
 #: (docs/design/tracking-history.md)
 WEIGHT = 0.01
 #: how many sweeps over the frames (docs/design/tracking-history.md)
-SWEEPS = 16
+SWEEPS = 20
 #: the sweeps (counted from 0) before which every frame's limbs are searched again by the
 #: reach search (docs/design/tracking-history.md)
 SEARCHES = (4, 8)
