@@ -26,7 +26,8 @@ the finished track (the stretches' with ``--stretches``, else the track) refit o
 and its process time per frame, each arm's elbow and wrist after it (and which arm is the
 farther from the cameras, :func:`far_arm`, and which held nearer the trunk, :func:`lower_arm`),
 and against the refit without the limbs searched again
-(``--temporal-sweeps 8 --temporal-searches none``, the refit of the twenty-ninth session); frames/s of
+(``--temporal-sweeps 8 --temporal-searches none --temporal-spans none``, the refit of the twenty-ninth
+session); frames/s of
 process time of the forward track (the median of the seeds; every job has a core to itself only with
 ``--jobs`` at most the cores).  With ``--variant``: the same for the preset with those
 options too, and the paired difference (variant - preset) of the seeds' means with its
@@ -144,7 +145,7 @@ def track_seed(job: tuple) -> dict:
         tm = temporal(tracker, masks, base)
         seconds = (time.process_time() - t0) / len(masks)
         t0 = time.process_time()
-        kept = temporal(tracker, masks, base, sweeps=8, searches=())  # the refit before the searches
+        kept = temporal(tracker, masks, base, sweeps=8, searches=(), spans=())  # the refit before the searches
         row |= {"temporal_kept": scored(kept.q)[0].mean(), "temporal_kept_smoothed": smoothed(kept.q)[0].mean(),
                 "temporal_kept_ms": 1e3 * (time.process_time() - t0) / len(masks)}
         (err_m, flex_m), (err_ms, flex_ms) = scored(tm.q), smoothed(tm.q)
@@ -313,7 +314,7 @@ def _temporal(rows: list[dict]) -> str:
             f"{_against(sm, raw, 2)}; flexion RMSE knees {rms('knees2_temporal_smoothed'):.1f}, elbows "
             f"{rms('elbows2_temporal_smoothed'):.1f} deg\n"
             f"    refit over time without the limbs searched again, 8 sweeps (--temporal-sweeps 8 --temporal-searches "
-            f"none; "
+            f"none --temporal-spans none; "
             f"{np.median(col('temporal_kept_ms')):.0f} ms a frame): mean {col('temporal_kept').mean():.1f} mm, smoothed "
             f"{col('temporal_kept_smoothed').mean():.1f}; the refit ({SWEEPS} sweeps, the limbs searched again before "
             f"sweeps {', '.join(map(str, SEARCHES))}) against it {_against(raw, col('temporal_kept'), 2)}, smoothed "

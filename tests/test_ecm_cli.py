@@ -705,7 +705,7 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
     out = tmp_path / "out"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--beside", "--temporal",
                  "--temporal-sweeps", "3", "--temporal-weight", "0.05", "--temporal-starts", "neighbours,pose",
-                 "--jobs", "2", "--smooth", "6", "-o", str(out)]) == 0
+                 "--temporal-spans", "2", "--jobs", "2", "--smooth", "6", "-o", str(out)]) == 0
     err = capsys.readouterr().err
     note = re.search(r"note: --temporal: 10 frames refit over 3 sweeps from neighbours and pose \(2 processes, "
                      r"the body sizes measured again every 2 sweeps\); mean fit \(IoU\) (\d\.\d+)", err)
@@ -714,6 +714,7 @@ def test_temporal_refits_the_finished_track_and_smooth_and_evaluate_use_it(tmp_p
     assert meta["temporal"] is True and meta["temporal_weight"] == 0.05 and meta["temporal_sweeps"] == 3
     assert meta["temporal_starts"] == ["neighbours", "pose"] and meta["temporal_sizes_every"] == 2
     assert meta["temporal_searches"] == [4, 8]  # past the 3 sweeps, and no reach search: none in the note
+    assert meta["temporal_spans"] == [2]
     from kms2pin.ecm import Trajectory
 
     robot = load(LOWER, root="free")
@@ -811,6 +812,7 @@ def _drawn_scales(robot, out: Path) -> np.ndarray:
 def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted(tmp_path, capsys):
     from kms2pin.ecm.temporal import SEARCHES as T_SEARCHES
     from kms2pin.ecm.temporal import SIZES_EVERY as T_SIZES_EVERY
+    from kms2pin.ecm.temporal import SPANS as T_SPANS
     from kms2pin.ecm.temporal import STARTS as T_STARTS
     from kms2pin.ecm.temporal import SWEEPS as T_SWEEPS
     from kms2pin.ecm.temporal import WEIGHT as T_WEIGHT
@@ -824,14 +826,15 @@ def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted
     meta = json.loads((out / "meta.json").read_text())
     assert (meta["temporal_weight"], meta["temporal_sweeps"]) == (T_WEIGHT, T_SWEEPS) == (0.01, 20)
     assert meta["temporal_searches"] == list(T_SEARCHES) == [4, 8]
+    assert meta["temporal_spans"] == list(T_SPANS) == [4, 4, 4, 4, 2, 2, 2, 2]
     assert meta["temporal_starts"] == list(T_STARTS) == ["pose", "target"]
     assert meta["temporal_sizes_every"] == T_SIZES_EVERY == 2
     other = tmp_path / "other"
     assert main(["track", LOWER, "--masks", str(masks), "--no-progress", "--no-video", "--temporal-sweeps", "2",
                  "-o", str(other)]) == 0
     err = capsys.readouterr().err
-    assert ("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every and "
-            "--temporal-searches set the refit of --temporal; without it they do nothing") in err
+    assert ("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every, "
+            "--temporal-searches and --temporal-spans set the refit of --temporal; without it they do nothing") in err
     assert not (other / "temporal.csv").exists() and "temporal" not in json.loads((other / "meta.json").read_text())
     scales = np.load(other / "poses.npz")["body_scales"]  # the track's measured sizes, drawn in animation.html
     assert np.abs(scales - 1.0).max() > 1e-3
@@ -839,7 +842,8 @@ def test_temporal_runs_with_the_refits_defaults_and_its_settings_alone_are_noted
     for bad in (["--temporal-weight", "-1"], ["--temporal-sweeps", "0"], ["--temporal-weight", "nan"],
                 ["--temporal-starts", "pose,truth"], ["--temporal-starts", "pose,pose"], ["--temporal-starts", ""],
                 ["--temporal-sizes-every", "-1"], ["--temporal-sizes-every", "1.5"], ["--temporal-searches", "-1"],
-                ["--temporal-searches", "4,x"], ["--temporal-searches", ""]):
+                ["--temporal-searches", "4,x"], ["--temporal-searches", ""], ["--temporal-spans", "0"],
+                ["--temporal-spans", "2,x"], ["--temporal-spans", ""]):
         with pytest.raises(SystemExit) as exc:  # argparse's own type check
             main(["track", LOWER, "--masks", str(masks), "--temporal", *bad, "-o", str(tmp_path / "bad")])
         assert exc.value.code == 2 and bad[0] in capsys.readouterr().err

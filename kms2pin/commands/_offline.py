@@ -80,6 +80,11 @@ def add_offline_arguments(p: argparse.ArgumentParser) -> None:
                         f"again from its pose by the reach search (--reach-search; a lost or missed limb, and the "
                         f"arms with --reach-always arms) (default {','.join(map(str, over_time.SEARCHES))}; none: "
                         f"no search; each search costs about as much as 4 sweeps)")
+    p.add_argument("--temporal-spans", type=_spans, metavar="H,...",
+                   help=f"with --temporal, how many frames away the frames beside are in each of the first "
+                        f"sweeps' targets, 1 in the sweeps after them: coarse to fine in time, so that a pull "
+                        f"spreads farther in a sweep (default {','.join(map(str, over_time.SPANS))}; none: 1 "
+                        f"throughout)")
 
 
 def offline_notes(args, n_cameras: int) -> None:
@@ -99,9 +104,10 @@ def offline_notes(args, n_cameras: int) -> None:
               "frames beside, so beside.csv is not written", file=sys.stderr)
     if not args.temporal and any(x is not None for x in (args.temporal_weight, args.temporal_sweeps,
                                                            args.temporal_starts, args.temporal_sizes_every,
-                                                           args.temporal_searches)):
-        print("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every and "
-              "--temporal-searches set the refit of --temporal; without it they do nothing", file=sys.stderr)
+                                                           args.temporal_searches, args.temporal_spans)):
+        print("note: --temporal-weight, --temporal-sweeps, --temporal-starts, --temporal-sizes-every, "
+              "--temporal-searches and --temporal-spans set the refit of --temporal; without it they do nothing",
+              file=sys.stderr)
 
 
 def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
@@ -118,7 +124,7 @@ def offline_meta(args, robot: Robot, tracker: Tracker) -> dict:
     if args.temporal:
         meta |= {"temporal": True, "temporal_weight": _weight(args), "temporal_sweeps": _sweeps(args),
                  "temporal_starts": list(_starts_of(args)), "temporal_sizes_every": _sizes_every(args),
-                 "temporal_searches": list(_searches_of(args))}
+                 "temporal_searches": list(_searches_of(args)), "temporal_spans": list(_spans_of(args))}
     return meta
 
 
@@ -285,6 +291,29 @@ def _searches_of(args) -> tuple[int, ...]:
     return over_time.SEARCHES if args.temporal_searches is None else args.temporal_searches
 
 
+def _spans(text: str) -> tuple[int, ...]:
+    """``--temporal-spans``' value: distances in frames (whole, >= 1), comma-separated, in
+    the sweeps' order, or ``none``."""
+    if text.strip().lower() == "none":
+        return ()
+    out = []
+    for x in text.split(","):
+        try:
+            h = int(x.strip())
+        except ValueError:
+            h = 0
+        if h < 1:
+            raise argparse.ArgumentTypeError(f"{x.strip()!r} is not a distance in frames: give whole numbers >= 1, "
+                                             "comma-separated, or none")
+        out.append(h)
+    return tuple(out)
+
+
+def _spans_of(args) -> tuple[int, ...]:
+    """``--temporal-spans``, or the refit's default."""
+    return over_time.SPANS if args.temporal_spans is None else args.temporal_spans
+
+
 def _starts(text: str) -> tuple[str, ...]:
     """``--temporal-starts``' value: names of :data:`kms2pin.ecm.temporal.START_NAMES`, comma-separated."""
     names = tuple(x.strip() for x in text.split(","))
@@ -319,7 +348,7 @@ def _refit_over_time(args, out: Path, robot: Robot, tracker: Tracker, frames: _F
     jobs = usable_cores() if args.jobs is None else args.jobs
     tm = over_time.temporal(tracker, FrameMasks(frames), qs, weight=_weight(args), sweeps=_sweeps(args),
                             starts=_starts_of(args), sizes_every=_sizes_every(args), searches=_searches_of(args),
-                            sources=frame_names(frames, n),
+                            spans=_spans_of(args), sources=frame_names(frames, n),
                             progress=progress, jobs=jobs)
     rows = []
     for k, r in enumerate(results):  # the online row's flags about the frame, not about where its pose came from

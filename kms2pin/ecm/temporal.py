@@ -28,7 +28,11 @@ refit in several processes at once, ``jobs``).  Each frame's ECM runs from each 
 default :data:`STARTS`, the first two); the end that fits the masks best is kept (a tie
 to the earlier in that order).  A frame whose own pose sits in a wrong basin
 (an arm a few pixels off, bent the wrong way) is refit from where the frames beside put
-it too.  Every ``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are measured
+it too.  The first sweeps run coarse to fine in time (``spans``, by default :data:`SPANS`):
+their frames beside are ``h`` frames away, not one (m_t the midpoint of q_{t-h} and
+q_{t+h}; near the ends ``h`` shrinks to the frames there are), so a pull spreads about h²
+times as far in a sweep, as a multigrid's coarse levels do, and the sweeps at ``h`` = 1
+after them hold each frame to the frames next to it.  Every ``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are measured
 again at the refit's poses, on every second frame its masks can drive, from the evidence
 of those frames alone (:meth:`~kms2pin.ecm.tracker.Tracker.measure_sizes`): the online
 track measured them at its own, worse poses, and an ellipsoid sized there fits the true
@@ -58,14 +62,17 @@ from .priors import RestPrior
 from .tracker import Tracker
 from .workers import FORK
 
-__all__ = ["SEARCHES", "SIZES_EVERY", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints", "processes",
-           "targets", "temporal"]
+__all__ = ["SEARCHES", "SIZES_EVERY", "SPANS", "START_NAMES", "STARTS", "SWEEPS", "WEIGHT", "Temporal", "midpoints",
+           "processes", "span", "targets", "temporal"]
 
 #: the spring towards the frames beside, in the frame's mean data stiffness
 #: (docs/design/tracking-history.md)
 WEIGHT = 0.01
 #: how many sweeps over the frames (docs/design/tracking-history.md)
 SWEEPS = 20
+#: the distance (frames) to the frames beside in each of the first sweeps' targets, 1 in the
+#: sweeps after them: coarse to fine in time (docs/design/tracking-history.md)
+SPANS = (4, 4, 4, 4, 2, 2, 2, 2)
 #: the sweeps (counted from 0) before which every frame's limbs are searched again by the
 #: reach search (docs/design/tracking-history.md)
 SEARCHES = (4, 8)
@@ -90,24 +97,35 @@ class Temporal:
     scales: np.ndarray
 
 
-def midpoints(model: pin.Model, q: np.ndarray) -> np.ndarray:
-    """(frames, nq): each frame's midpoint of the frames before and after it (the first
-    and last: of themselves and their neighbour)."""
+def midpoints(model: pin.Model, q: np.ndarray, h: int = 1) -> np.ndarray:
+    """(frames, nq): each frame's midpoint of the frames ``h`` before and after it (``h``
+    shrunk to the frames there are near the ends, to 1 at least: the first and last frames
+    take themselves and their neighbour)."""
     n = len(q)
-    return np.array([pin.interpolate(model, q[max(t - 1, 0)], q[min(t + 1, n - 1)], 0.5) for t in range(n)])
+    out = []
+    for t in range(n):
+        k = max(1, min(int(h), t, n - 1 - t))
+        out.append(pin.interpolate(model, q[max(t - k, 0)], q[min(t + k, n - 1)], 0.5))
+    return np.array(out)
 
 
-def targets(model: pin.Model, q: np.ndarray) -> np.ndarray:
-    """(frames, nq): each frame's target, halfway from its pose to :func:`midpoints`' (the
-    weights 1/4, 1/2, 1/4 of the frame before, the frame and the frame after)."""
+def targets(model: pin.Model, q: np.ndarray, h: int = 1) -> np.ndarray:
+    """(frames, nq): each frame's target, halfway from its pose to :func:`midpoints`' (with
+    ``h`` = 1 the weights 1/4, 1/2, 1/4 of the frame before, the frame and the frame after)."""
     if len(q) < 2:
         return np.array(q, dtype=float)
-    return np.array([pin.interpolate(model, x, m, 0.5) for x, m in zip(q, midpoints(model, q))])
+    return np.array([pin.interpolate(model, x, m, 0.5) for x, m in zip(q, midpoints(model, q, h))])
+
+
+def span(spans: Sequence[int], k: int) -> int:
+    """The distance to the frames beside in sweep ``k`` (counted from 0) of ``spans``: its
+    ``k``-th, 1 past its end."""
+    return int(spans[k]) if k < len(spans) else 1
 
 
 def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float = WEIGHT, sweeps: int = SWEEPS,
              starts: Sequence[str] = STARTS, sizes_every: int = SIZES_EVERY, searches: Sequence[int] = SEARCHES,
-             sources: Sequence[str] | None = None,
+             spans: Sequence[int] = SPANS, sources: Sequence[str] | None = None,
              progress: Callable | None = None, jobs: int = 1) -> Temporal:
     """The track ``q`` (frames, nq) of ``masks`` (a sequence of frames, each one mask per
     camera) refit over time (module docstring) by ``tracker`` (the one that made the
@@ -115,7 +133,8 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     each frame's ECM from each of ``starts`` (names in :data:`START_NAMES`), the best fit
     kept, the body sizes measured again every ``sizes_every`` sweeps (0: never; the
     tracker's own are left as they were), every frame's limbs searched again before each
-    sweep of ``searches`` (counted from 0; sweeps past the last are ignored).  ``jobs``
+    sweep of ``searches`` (counted from 0; sweeps past the last are ignored), the frames
+    beside ``spans[k]`` frames away in sweep ``k`` (1 past its end; empty: 1 throughout).  ``jobs``
     processes refit a sweep's frames at once (forked, Linux only; the same results as
     one).  ``sources`` names each frame in error messages (default ``"frame k"``);
     ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
@@ -138,6 +157,9 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     if not all(_whole(k) and not isinstance(k, bool) for k in searches):
         raise ValueError(f"searches must be sweeps' numbers, whole numbers >= 0, not {searches!r}")
     searched = {int(k) for k in searches}
+    spans = tuple(spans)
+    if not all(_whole(h, 1) and not isinstance(h, bool) for h in spans):
+        raise ValueError(f"spans must be distances in frames, whole numbers >= 1, not {spans!r}")
     if not _whole(jobs, 1):
         raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
     names = list(sources) if sources is not None else [f"frame {k}" for k in range(n)]
@@ -156,7 +178,7 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
                 scales = tracker.measure_sizes((masks[t], q[t], names[t]) for t in range(0, n, 2) if fit[t] > 0)
             if k in searched and tracker.reach is not None:
                 q = _searched(q, scales, pool, int(jobs))
-            q, fit = _sweep(q, starts, scales, pool, int(jobs), progress)
+            q, fit = _sweep(q, starts, scales, span(spans, k), pool, int(jobs), progress)
         done = True
     finally:
         _SHARED = None
@@ -197,15 +219,16 @@ def _quiet() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _sweep(q: np.ndarray, starts: tuple[str, ...], scales: np.ndarray, pool, jobs: int,
+def _sweep(q: np.ndarray, starts: tuple[str, ...], scales: np.ndarray, h: int, pool, jobs: int,
            progress: Callable | None) -> tuple[np.ndarray, np.ndarray]:
     """One sweep: every frame refit from the last sweep's poses ``q`` at the body sizes
-    ``scales`` (in ``pool``'s processes if there is one); the new poses and their fits."""
+    ``scales``, the frames beside ``h`` frames away (in ``pool``'s processes if there is
+    one); the new poses and their fits."""
     model, n = _SHARED[0].robot.model, len(q)
-    middle = targets(model, q)
+    middle = targets(model, q, h)
     points = {"pose": q, "target": middle}
     if "neighbours" in starts:
-        points["neighbours"] = midpoints(model, q)
+        points["neighbours"] = midpoints(model, q, h)
     items = [(t, np.array([points[s][t] for s in starts]), middle[t], scales) for t in range(n)]
     done = _each(_refit, items, pool, jobs)
     new, fit = q.copy(), np.zeros(n)
