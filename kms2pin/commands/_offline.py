@@ -269,8 +269,9 @@ def _sizes_every(args) -> int:
     return over_time.SIZES_EVERY if args.temporal_sizes_every is None else args.temporal_sizes_every
 
 
-def _searches(text: str) -> tuple[int, ...]:
-    """``--temporal-searches``' value: sweeps' numbers (whole, >= 0), comma-separated, or ``none``."""
+def _whole_numbers(text: str, least: int, what: str) -> tuple[int, ...]:
+    """Whole numbers >= ``least``, comma-separated, in the order given, or ``none`` (empty);
+    anything else names the first bad one as not ``what``."""
     if text.strip().lower() == "none":
         return ()
     out = []
@@ -278,12 +279,17 @@ def _searches(text: str) -> tuple[int, ...]:
         try:
             k = int(x.strip())
         except ValueError:
-            k = -1
-        if k < 0:
-            raise argparse.ArgumentTypeError(f"{x.strip()!r} is not a sweep's number: give whole numbers >= 0, "
+            k = least - 1
+        if k < least:
+            raise argparse.ArgumentTypeError(f"{x.strip()!r} is not {what}: give whole numbers >= {least}, "
                                              "comma-separated, or none")
         out.append(k)
-    return tuple(sorted(set(out)))
+    return tuple(out)
+
+
+def _searches(text: str) -> tuple[int, ...]:
+    """``--temporal-searches``' value: sweeps' numbers (whole, >= 0), comma-separated, or ``none``."""
+    return tuple(sorted(set(_whole_numbers(text, 0, "a sweep's number"))))
 
 
 def _searches_of(args) -> tuple[int, ...]:
@@ -294,19 +300,7 @@ def _searches_of(args) -> tuple[int, ...]:
 def _spans(text: str) -> tuple[int, ...]:
     """``--temporal-spans``' value: distances in frames (whole, >= 1), comma-separated, in
     the sweeps' order, or ``none``."""
-    if text.strip().lower() == "none":
-        return ()
-    out = []
-    for x in text.split(","):
-        try:
-            h = int(x.strip())
-        except ValueError:
-            h = 0
-        if h < 1:
-            raise argparse.ArgumentTypeError(f"{x.strip()!r} is not a distance in frames: give whole numbers >= 1, "
-                                             "comma-separated, or none")
-        out.append(h)
-    return tuple(out)
+    return _whole_numbers(text, 1, "a distance in frames")
 
 
 def _spans_of(args) -> tuple[int, ...]:
