@@ -28,16 +28,17 @@ refit in several processes at once, ``jobs``).  Each frame's ECM runs from each 
 default :data:`STARTS`, the first two); the end that fits the masks best is kept (a tie
 to the earlier in that order).  A frame whose own pose sits in a wrong basin
 (an arm a few pixels off, bent the wrong way) is refit from where the frames beside put
-it too.  The first sweeps run coarse to fine in time (``spans``, by default :data:`SPANS`):
-their frames beside are ``h`` frames away, not one (m_t the midpoint of q_{t-h} and
-q_{t+h}; near the ends ``h`` shrinks to the frames there are), so a pull spreads about h²
-times as far in a sweep, as a multigrid's coarse levels do, and the sweeps at ``h`` = 1
-after them hold each frame to the frames next to it.  Every ``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are measured
-again at the refit's poses, on every second frame its masks can drive, from the evidence
-of those frames alone (:meth:`~kms2pin.ecm.tracker.Tracker.measure_sizes`): the online
-track measured them at its own, worse poses, and an ellipsoid sized there fits the true
-pose less well.  Before each sweep of ``searches`` (:data:`SEARCHES`) every frame's limbs
-are searched again from its pose, on its masks alone, by the tracker's reach search
+it too.  The first sweeps run coarse to fine in time (``spans``, by default
+:data:`SPANS`): their frames beside are ``h`` frames away, not one (m_t the midpoint of
+q_{t-h} and q_{t+h}; near the ends ``h`` shrinks to the frames there are), so a pull
+spreads about h² times as far in a sweep, as a multigrid's coarse levels do, and the
+sweeps at ``h`` = 1 after them hold each frame to the frames next to it.  Every
+``sizes_every`` sweeps (:data:`SIZES_EVERY`) the body sizes are measured again at the
+refit's poses, on every second frame its masks can drive, from the evidence of those
+frames alone (:meth:`~kms2pin.ecm.tracker.Tracker.measure_sizes`): the online track
+measured them at its own, worse poses, and an ellipsoid sized there fits the true pose
+less well.  Before each sweep of ``searches`` (:data:`SEARCHES`) every frame's limbs are
+searched again from its pose, on its masks alone, by the tracker's reach search
 (:meth:`~kms2pin.ecm.tracker.Tracker.reach_limbs`; nothing without ``reach_search``): an
 arm held in a wrong basin by the frames beside, which ECM does not leave, is re-aimed at
 the masks, and the sweeps after it carry the move to the frames around.  Repeated sweeps
@@ -134,8 +135,8 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     kept, the body sizes measured again every ``sizes_every`` sweeps (0: never; the
     tracker's own are left as they were), every frame's limbs searched again before each
     sweep of ``searches`` (counted from 0; sweeps past the last are ignored), the frames
-    beside ``spans[k]`` frames away in sweep ``k`` (1 past its end; empty: 1 throughout).  ``jobs``
-    processes refit a sweep's frames at once (forked, Linux only; the same results as
+    beside ``spans[k]`` frames away in sweep ``k`` (1 past its end; empty: 1 throughout).
+    ``jobs`` processes refit a sweep's frames at once (forked, Linux only; the same results as
     one).  ``sources`` names each frame in error messages (default ``"frame k"``);
     ``progress`` wraps each sweep's iteration over the frames (a tqdm)."""
     q = np.array(q, dtype=float)
