@@ -155,11 +155,11 @@ def temporal(tracker: Tracker, masks: Sequence, q: np.ndarray, *, weight: float 
     if not _whole(sizes_every):
         raise ValueError(f"sizes_every must be a whole number >= 0, not {sizes_every!r}")
     searches = tuple(searches)
-    if not all(_whole(k) and not isinstance(k, bool) for k in searches):
+    if not _all_whole(searches):
         raise ValueError(f"searches must be sweeps' numbers, whole numbers >= 0, not {searches!r}")
     searched = {int(k) for k in searches}
     spans = tuple(spans)
-    if not all(_whole(h, 1) and not isinstance(h, bool) for h in spans):
+    if not _all_whole(spans, 1):
         raise ValueError(f"spans must be distances in frames, whole numbers >= 1, not {spans!r}")
     if not _whole(jobs, 1):
         raise ValueError(f"jobs must be a whole number >= 1, not {jobs!r}")
@@ -199,6 +199,11 @@ def _whole(x, least: int = 0) -> bool:
         return int(x) == x and x >= least
     except (TypeError, ValueError, OverflowError):
         return False
+
+
+def _all_whole(xs: Sequence, least: int = 0) -> bool:
+    """Whether every one of ``xs`` is a whole number >= ``least`` (:func:`_whole`), and none a bool."""
+    return all(_whole(x, least) and not isinstance(x, bool) for x in xs)
 
 
 def processes(jobs: int, n: int) -> int:
